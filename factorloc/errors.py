@@ -1,0 +1,28 @@
+"""The exception hierarchy of factorloc.
+
+Every error the library raises on purpose derives from :class:`FactorlocError`,
+so a caller can catch the library's errors without catching programming bugs.
+Messages name the offending field and its value.
+"""
+
+from __future__ import annotations
+
+
+class FactorlocError(Exception):
+    """Base class of every error factorloc raises on purpose."""
+
+
+class InputError(FactorlocError, ValueError):
+    """An input (array, image, pose, sigma, file) is malformed or out of range."""
+
+
+class ConfigError(FactorlocError, ValueError):
+    """A configuration value or key is invalid."""
+
+
+class DatasetError(InputError):
+    """A scenario or log on disk is missing, damaged or of an unknown version."""
+
+
+class FusionError(FactorlocError):
+    """Fusion could not produce a result (e.g. no estimate to fuse)."""

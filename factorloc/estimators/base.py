@@ -1,0 +1,72 @@
+"""The step protocol every estimator implements, and the hypotheses it is seeded with."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
+
+from factorloc.types import Component, Estimate, Query, Reference
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """The reliable estimates of the earlier steps, in hierarchy order.
+
+    An estimator reads the seed it needs: :meth:`heading` gives the *latest*
+    reliable heading (θ3, else θ2, else θ1 — the later steps are the more
+    exact ones in the patent's hierarchy), :meth:`position` the latest
+    reliable position.
+    """
+
+    estimates: tuple[Estimate, ...] = ()
+
+    def heading(self) -> tuple[float, float, str] | None:
+        """``(theta_rad, sigma_rad, step)`` of the latest reliable heading, or None."""
+        for est in reversed(self.estimates):
+            if est.reliable and est.measures(Component.THETA):
+                return est.value(Component.THETA), est.sigma(Component.THETA), est.step
+        return None
+
+    def position(self) -> tuple[float, float, float, float, str] | None:
+        """``(x_m, y_m, sigma_x_m, sigma_y_m, step)`` of the latest reliable position, or None."""
+        for est in reversed(self.estimates):
+            if est.reliable and est.measures(Component.X):
+                return (
+                    est.value(Component.X),
+                    est.value(Component.Y),
+                    est.sigma(Component.X),
+                    est.sigma(Component.Y),
+                    est.step,
+                )
+        return None
+
+    def plus(self, estimate: Estimate) -> Hypotheses:
+        """These hypotheses and ``estimate`` (only kept when reliable)."""
+        return Hypotheses(self.estimates + (estimate,)) if estimate.reliable else self
+
+    @classmethod
+    def of(cls, estimates: Sequence[Estimate]) -> Hypotheses:
+        return cls(tuple(e for e in estimates if e.reliable))
+
+
+@runtime_checkable
+class Step(Protocol):
+    """One estimator in the hierarchy.
+
+    ``prepare`` does the work that depends only on the reference (keypoints,
+    KD-trees, pyramids) once; ``estimate`` runs per query and returns None
+    when the query lacks this step's inputs (the step is then reported as
+    skipped). Steps never call each other: the pipeline hands each the
+    reliable hypotheses of the earlier ones.
+    """
+
+    name: str
+
+    def prepare(self, reference: Reference) -> Any:
+        """Reference-only precomputation (returned object is passed back to ``estimate``)."""
+        ...
+
+    def estimate(self, prepared: Any, query: Query, hypotheses: Hypotheses) -> Estimate | None:
+        """This step's estimate for ``query``, or None when its inputs are absent."""
+        ...

@@ -1,0 +1,124 @@
+"""SE(2) helpers: angle wrapping, the :class:`Pose2` value type, rotations.
+
+Conventions (REP-103): x forward, y left, z up; headings counter-clockwise in
+radians. A pose named ``T_a_b`` maps coordinates in frame ``b`` to frame ``a``
+(``p_a = T_a_b * p_b``); ``T_world_robot`` is the robot's pose in the world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from factorloc._validate import finite_float
+
+
+def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
+    """Wrap an angle (or array of angles) to [-π, π).
+
+    The one helper every module uses, so that wrapping is done the same way
+    everywhere.
+    """
+    wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + math.pi, 2.0 * math.pi) - math.pi
+    if np.ndim(wrapped) == 0:
+        return float(wrapped)
+    return wrapped
+
+
+def rot2(theta_rad: float) -> np.ndarray:
+    """The 2×2 rotation matrix of ``theta_rad``."""
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
+    return np.array([[c, -s], [s, c]])
+
+
+def rotate_covariance(covariance: np.ndarray, theta_rad: float) -> np.ndarray:
+    """Rotate a 3×3 (x, y, θ) covariance by ``theta_rad``: ``R Σ Rᵀ`` with R = diag(rot2(θ), 1).
+
+    Used to turn a body-frame pose covariance (GTSAM's ``Marginals``) into
+    the world frame (``theta_rad`` = the pose's heading) and back (``-theta``).
+    """
+    r = np.eye(3)
+    r[:2, :2] = rot2(theta_rad)
+    out = r @ covariance @ r.T
+    return 0.5 * (out + out.T)
+
+
+@dataclass(frozen=True)
+class Pose2:
+    """A planar pose: position ``x``, ``y`` in metres and heading ``theta`` in radians.
+
+    ``theta`` is wrapped to [-π, π) at construction. Read ``Pose2(x, y, theta)``
+    as ``T_parent_child``; composition follows SE(2).
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "x", finite_float("Pose2.x", self.x))
+        object.__setattr__(self, "y", finite_float("Pose2.y", self.y))
+        object.__setattr__(self, "theta", wrap_angle(finite_float("Pose2.theta", self.theta)))
+
+    # --- group operations -------------------------------------------------
+    def compose(self, other: Pose2) -> Pose2:
+        """``self * other``: ``T_a_c = T_a_b.compose(T_b_c)``."""
+        c, s = math.cos(self.theta), math.sin(self.theta)
+        return Pose2(
+            self.x + c * other.x - s * other.y,
+            self.y + s * other.x + c * other.y,
+            self.theta + other.theta,
+        )
+
+    def __mul__(self, other: Pose2) -> Pose2:
+        return self.compose(other)
+
+    def inverse(self) -> Pose2:
+        """``T_b_a`` from ``T_a_b``."""
+        c, s = math.cos(self.theta), math.sin(self.theta)
+        return Pose2(-c * self.x - s * self.y, s * self.x - c * self.y, -self.theta)
+
+    def between(self, other: Pose2) -> Pose2:
+        """``self⁻¹ * other``: the pose of ``other`` seen from ``self``."""
+        return self.inverse().compose(other)
+
+    def transform_points(self, points: np.ndarray) -> np.ndarray:
+        """Map N×2 points from the child frame to the parent frame."""
+        pts = np.asarray(points, dtype=np.float64)
+        return pts @ rot2(self.theta).T + np.array([self.x, self.y])
+
+    # --- conversions ------------------------------------------------------
+    @property
+    def translation(self) -> np.ndarray:
+        """``[x, y]`` in metres."""
+        return np.array([self.x, self.y])
+
+    def as_array(self) -> np.ndarray:
+        """``[x, y, theta]``."""
+        return np.array([self.x, self.y, self.theta])
+
+    @classmethod
+    def from_array(cls, values: np.ndarray | list[float] | tuple[float, ...]) -> Pose2:
+        """Build from ``[x, y, theta]``."""
+        v = list(np.asarray(values, dtype=np.float64).ravel())
+        if len(v) != 3:
+            from factorloc.errors import InputError
+
+            raise InputError(f"Pose2.from_array needs 3 values [x, y, theta], got {len(v)}")
+        return cls(v[0], v[1], v[2])
+
+    def to_gtsam(self):  # noqa: ANN201 - gtsam has no stubs
+        """Return the equivalent ``gtsam.Pose2``."""
+        import gtsam
+
+        return gtsam.Pose2(self.x, self.y, self.theta)
+
+    @classmethod
+    def from_gtsam(cls, pose) -> Pose2:  # noqa: ANN001
+        """Build from a ``gtsam.Pose2``."""
+        return cls(float(pose.x()), float(pose.y()), float(pose.theta()))
+
+    def __repr__(self) -> str:
+        return f"Pose2(x={self.x:.4f} m, y={self.y:.4f} m, theta={math.degrees(self.theta):.3f}°)"
