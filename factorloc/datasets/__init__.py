@@ -1,0 +1,1 @@
+"""The on-disk scenario format and loaders for public datasets."""
