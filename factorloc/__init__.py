@@ -2,7 +2,9 @@
 
 from factorloc.config import Config
 from factorloc.errors import ConfigError, DatasetError, FactorlocError, FusionError, InputError
+from factorloc.fusion import FusionStrategy, GraphFusion, ProductFusion
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.pipeline import Localizer, fuse, localize
 from factorloc.types import (
     CameraImage,
     Component,
@@ -19,3 +21,32 @@ from factorloc.types import (
 )
 
 __version__ = "0.1.0"
+
+__all__ = [
+    "CameraImage",
+    "Component",
+    "Config",
+    "ConfigError",
+    "DatasetError",
+    "Estimate",
+    "FactorlocError",
+    "FusionError",
+    "FusionStrategy",
+    "GraphFusion",
+    "InputError",
+    "Localization",
+    "Localizer",
+    "Odometry",
+    "Panorama",
+    "PointCloud",
+    "Pose2",
+    "ProductFusion",
+    "Query",
+    "Reference",
+    "Scan",
+    "StepReport",
+    "StepStatus",
+    "fuse",
+    "localize",
+    "wrap_angle",
+]

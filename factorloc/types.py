@@ -195,6 +195,17 @@ class Estimate:
         """True when a full estimate couples position and heading (non-zero x–θ or y–θ terms)."""
         return self.kind == "full" and bool(np.any(self.covariance[:2, 2] != 0.0))
 
+    def marginal(self, components: Sequence[Component | str]) -> Estimate:
+        """The estimate restricted to ``components`` (values and covariance block)."""
+        comps = _components(components)
+        missing = [c.value for c in comps if c not in self.components]
+        if missing:
+            raise InputError(f"Estimate({self.step}) does not measure {missing}")
+        idx = [self.components.index(c) for c in comps]
+        return Estimate(
+            self.step, comps, self.values[idx], self.covariance[np.ix_(idx, idx)], self.reliable, self.reason, self.diagnostics
+        )
+
     def with_verdict(self, reliable: bool, reason: str) -> Estimate:
         """A copy with another reliability verdict."""
         return Estimate(self.step, self.components, self.values, self.covariance, reliable, reason, self.diagnostics)

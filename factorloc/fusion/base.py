@@ -1,0 +1,85 @@
+"""What a fusion strategy is, and what it returns."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from factorloc.errors import FusionError
+from factorloc.geometry import Pose2, wrap_angle
+from factorloc.types import Component, Estimate
+
+_INDEX = {Component.X: 0, Component.Y: 1, Component.THETA: 2}
+
+
+@dataclass(frozen=True, eq=False)
+class Fused:
+    """A fused pose: its maximum-likelihood value and world-frame covariance.
+
+    ``covariance`` is 3×3, order (x, y, θ); an under-determined component has
+    variance ``inf`` (no cross terms) and a placeholder value.
+    """
+
+    pose: Pose2
+    covariance: np.ndarray
+    undetermined: tuple[Component, ...] = ()
+
+
+@runtime_checkable
+class FusionStrategy(Protocol):
+    """Fuses independent estimates of one pose into one Gaussian."""
+
+    name: str
+
+    def fuse(self, estimates: Sequence[Estimate]) -> Fused:
+        """The maximum-likelihood pose and its world-frame covariance."""
+        ...
+
+
+def indices(estimate: Estimate) -> list[int]:
+    """Positions of the estimate's components in (x, y, θ)."""
+    return [_INDEX[c] for c in estimate.components]
+
+
+def undetermined_components(estimates: Sequence[Estimate]) -> tuple[Component, ...]:
+    """Components that no estimate measures (position counts as x and y together)."""
+    measured = {c for e in estimates for c in e.components}
+    return tuple(c for c in (Component.X, Component.Y, Component.THETA) if c not in measured)
+
+
+def check_estimates(estimates: Sequence[Estimate]) -> list[Estimate]:
+    """Validate the input of a strategy: a non-empty sequence of :class:`Estimate`."""
+    ests = list(estimates)
+    if not ests:
+        raise FusionError("nothing to fuse: the list of estimates is empty")
+    for i, e in enumerate(ests):
+        if not isinstance(e, Estimate):
+            raise FusionError(f"estimates[{i}] is a {type(e).__name__}, not an Estimate")
+    return ests
+
+
+def heading_anchor(estimates: Sequence[Estimate]) -> float:
+    """The heading of the most certain heading-measuring estimate (0 if none).
+
+    Headings are fused in the tangent space around it, so that 179° and −179°
+    average to 180°, not 0°.
+    """
+    best, best_var = 0.0, math.inf
+    for e in estimates:
+        if e.measures(Component.THETA):
+            var = e.sigma(Component.THETA) ** 2
+            if var < best_var:
+                best, best_var = e.value(Component.THETA), var
+    return best
+
+
+def unwrap_values(estimate: Estimate, anchor_rad: float) -> np.ndarray:
+    """The estimate's values with θ expressed as ``anchor + wrap(θ - anchor)``."""
+    z = np.array(estimate.values, dtype=np.float64)
+    if estimate.measures(Component.THETA):
+        z[-1] = anchor_rad + wrap_angle(z[-1] - anchor_rad)
+    return z

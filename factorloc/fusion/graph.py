@@ -1,0 +1,140 @@
+"""The same fusion as a GTSAM factor graph over one ``gtsam.Pose2``.
+
+Each estimate becomes unary factor(s) on the pose:
+
+- heading-only → ``PoseRotationPrior2D`` (error: the angle between the pose's
+  rotation and the measurement);
+- position-only → ``PoseTranslationPrior2D`` (error: world-frame x, y; a full
+  2×2 covariance is kept as a ``Gaussian`` noise model);
+- full pose with per-axis (block-diagonal) sigmas → *both* of the above. This
+  reproduces the patent's per-axis product exactly.
+- full pose whose covariance couples position and heading →
+  ``PriorFactorPose2``. Its error is the SE(2) logarithm in the *body* frame,
+  so the world-frame covariance is first rotated into the body frame of the
+  measurement. It is not the per-axis product (see the tests for a measured
+  example), so it is used only for estimates that really carry such a
+  joint covariance.
+
+The optimizer starts at the most certain estimate (from zero, headings at
+179° and −179° converge to the wrong side) and runs to tight tolerances.
+``gtsam.Marginals`` returns the covariance in the body frame at the solution;
+its translation block (and cross terms) are rotated into the world frame.
+Components that no estimate constrains would make the graph singular
+(``Marginals`` raises on it): they are anchored by a unit placeholder prior
+that does not touch the other components, and reported as under-determined
+with infinite variance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+
+from factorloc.fusion.base import Fused, check_estimates, heading_anchor, undetermined_components
+from factorloc.geometry import Pose2, rotate_covariance
+from factorloc.types import Component, Estimate
+
+POSE_KEY = 0
+
+
+def _noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
+    """The one place noise models are built: diagonal → Diagonal.Sigmas, else Gaussian.Covariance."""
+    cov = np.asarray(covariance, dtype=np.float64)
+    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
+        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov)))
+    return gtsam.noiseModel.Gaussian.Covariance(cov)
+
+
+def factors_for(estimate: Estimate, key: int = POSE_KEY) -> list[gtsam.NonlinearFactor]:
+    """The unary factor(s) that represent ``estimate`` on pose ``key``."""
+    v, cov = estimate.values, estimate.covariance
+    if estimate.kind == "heading":
+        return [gtsam.PoseRotationPrior2D(key, gtsam.Rot2(float(v[0])), _noise(cov))]
+    if estimate.kind == "position":
+        return [gtsam.PoseTranslationPrior2D(key, np.array(v[:2]), _noise(cov))]
+    if estimate.has_cross_covariance:
+        body_cov = rotate_covariance(cov, -float(v[2]))
+        return [gtsam.PriorFactorPose2(key, gtsam.Pose2(*map(float, v)), _noise(body_cov))]
+    return [
+        gtsam.PoseTranslationPrior2D(key, np.array(v[:2]), _noise(cov[:2, :2])),
+        gtsam.PoseRotationPrior2D(key, gtsam.Rot2(float(v[2])), _noise(cov[2:, 2:])),
+    ]
+
+
+class GraphFusion:
+    """Fusion by nonlinear least squares on a one-pose GTSAM factor graph.
+
+    Parameters
+    ----------
+    optimizer
+        ``"levenberg_marquardt"`` (default) or ``"gauss_newton"``.
+    max_iterations
+        Iteration cap of the optimizer.
+    """
+
+    name = "graph"
+
+    def __init__(self, optimizer: str = "levenberg_marquardt", max_iterations: int = 100) -> None:
+        if optimizer not in ("levenberg_marquardt", "gauss_newton"):
+            from factorloc.errors import ConfigError
+
+            raise ConfigError(f"GraphFusion.optimizer must be 'levenberg_marquardt' or 'gauss_newton', got {optimizer!r}")
+        self.optimizer = optimizer
+        self.max_iterations = int(max_iterations)
+
+    def build(self, estimates: Sequence[Estimate]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, tuple[Component, ...]]:
+        """The factor graph, its initial values and the under-determined components."""
+        ests = check_estimates(estimates)
+        graph = gtsam.NonlinearFactorGraph()
+        for e in ests:
+            for f in factors_for(e):
+                graph.add(f)
+        undetermined = undetermined_components(ests)
+        initial = _initial_pose(ests)
+        if Component.X in undetermined:
+            graph.add(gtsam.PoseTranslationPrior2D(POSE_KEY, np.array([initial.x, initial.y]), _noise(np.eye(2))))
+        if Component.THETA in undetermined:
+            graph.add(gtsam.PoseRotationPrior2D(POSE_KEY, gtsam.Rot2(initial.theta), _noise(np.eye(1))))
+        values = gtsam.Values()
+        values.insert(POSE_KEY, initial.to_gtsam())
+        return graph, values, undetermined
+
+    def fuse(self, estimates: Sequence[Estimate]) -> Fused:
+        graph, initial, undetermined = self.build(estimates)
+        if self.optimizer == "gauss_newton":
+            params = gtsam.GaussNewtonParams()
+            params.setRelativeErrorTol(1e-16)
+            params.setAbsoluteErrorTol(1e-16)
+            params.setMaxIterations(self.max_iterations)
+            result = gtsam.GaussNewtonOptimizer(graph, initial, params).optimize()
+        else:
+            params = gtsam.LevenbergMarquardtParams()
+            params.setRelativeErrorTol(1e-16)
+            params.setAbsoluteErrorTol(1e-16)
+            params.setMaxIterations(self.max_iterations)
+            result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        pose = Pose2.from_gtsam(result.atPose2(POSE_KEY))
+        body_cov = gtsam.Marginals(graph, result).marginalCovariance(POSE_KEY)
+        cov = rotate_covariance(np.asarray(body_cov), pose.theta)
+        if undetermined:
+            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in undetermined]
+            cov[idx, :] = 0.0
+            cov[:, idx] = 0.0
+            cov[idx, idx] = np.inf
+        return Fused(pose, cov, undetermined)
+
+    def __repr__(self) -> str:
+        return f"GraphFusion(optimizer={self.optimizer!r})"
+
+
+def _initial_pose(estimates: Sequence[Estimate]) -> Pose2:
+    """Start at the most certain position and the most certain heading."""
+    best_pos, best_det = (0.0, 0.0), np.inf
+    for e in estimates:
+        if e.measures(Component.X):
+            det = float(np.linalg.det(e.covariance[:2, :2]))
+            if det < best_det:
+                best_pos, best_det = (e.value(Component.X), e.value(Component.Y)), det
+    return Pose2(best_pos[0], best_pos[1], heading_anchor(estimates))

@@ -1,0 +1,167 @@
+"""Gating: which estimates are fused. Small pure rules.
+
+Two kinds of gate:
+
+- **reliability** (the patent): an estimate is fused only if its σ is below
+  its step's threshold and the estimator's own criteria hold (match count,
+  correlation peak over Ct, ICP fitness…). The estimators apply
+  :func:`sigma_gate` themselves and set ``Estimate.reliable``; an unreliable
+  estimate is neither fused nor passed on as a hypothesis.
+- **consistency** (beyond the patent): a reliable estimate that disagrees with
+  the fusion of the others is rejected (:func:`consistency_gate`). Like the
+  patent's fusion, the test is per axis group: positions are tested against
+  positions (2 degrees of freedom), headings against headings (1), so a
+  full-pose estimate can lose its position and keep its heading.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.stats import chi2
+
+from factorloc.fusion.product import ProductFusion
+from factorloc.geometry import wrap_angle
+from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
+
+GROUPS: dict[str, tuple[Component, ...]] = {"position": POSITION, "heading": HEADING}
+
+
+def sigma_gate(
+    estimate: Estimate,
+    max_sigma_position_m: float | None = None,
+    max_sigma_heading_rad: float | None = None,
+) -> tuple[bool, str]:
+    """Whether the estimate's σ are under the thresholds, and why not.
+
+    The position σ tested is the largest standard deviation of the 2×2
+    position covariance (the square root of its largest eigenvalue), so a
+    corridor-shaped uncertainty fails on its long axis.
+    """
+    problems = []
+    if max_sigma_position_m is not None and estimate.measures(Component.X):
+        sigma = math.sqrt(float(np.linalg.eigvalsh(estimate.covariance[:2, :2])[-1]))
+        if sigma > max_sigma_position_m:
+            problems.append(f"σ position {sigma:.3g} m > {max_sigma_position_m:.3g} m")
+    if max_sigma_heading_rad is not None and estimate.measures(Component.THETA):
+        sigma = estimate.sigma(Component.THETA)
+        if sigma > max_sigma_heading_rad:
+            problems.append(f"σθ {math.degrees(sigma):.3g}° > {math.degrees(max_sigma_heading_rad):.3g}°")
+    return (not problems, "; ".join(problems))
+
+
+def chi2_threshold(probability: float, dof: int) -> float:
+    """The χ² quantile with ``dof`` degrees of freedom."""
+    return float(chi2.ppf(probability, dof))
+
+
+def mahalanobis_sq(estimate: Estimate, others: Sequence[Estimate]) -> float:
+    """Squared Mahalanobis distance between ``estimate`` and the product of ``others``.
+
+    All must measure the same components. ``d² = eᵀ (Σ_e + Σ_o)⁻¹ e`` with e
+    the difference of the means (θ wrapped) and Σ_o the fused covariance.
+    """
+    fused = ProductFusion().fuse(others)
+    idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in estimate.components]
+    err = np.array(estimate.values) - fused.pose.as_array()[idx]
+    if estimate.measures(Component.THETA):
+        err[-1] = wrap_angle(err[-1])
+    s = estimate.covariance + fused.covariance[np.ix_(idx, idx)]
+    return float(err @ np.linalg.solve(s, err))
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The consistency gate's verdict on one estimate.
+
+    ``accepted`` lists the components that pass (all, some or none);
+    ``reason`` explains the rejected ones; ``mahalanobis_sq`` holds the last
+    d² of each group tested.
+    """
+
+    estimate: Estimate
+    accepted: tuple[Component, ...]
+    reason: str
+    mahalanobis_sq: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def fully_accepted(self) -> bool:
+        return self.accepted == self.estimate.components
+
+    def accepted_estimate(self) -> Estimate | None:
+        """The part of the estimate that may be fused (None if nothing is left)."""
+        if not self.accepted:
+            return None
+        if self.fully_accepted:
+            return self.estimate
+        return self.estimate.marginal(self.accepted)
+
+
+def _gate_group(parts: list[Estimate], probability: float) -> tuple[dict[int, str], dict[int, float]]:
+    """Worst-first rejection inside one group of estimates of the same components."""
+    active = list(range(len(parts)))
+    rejected: dict[int, str] = {}
+    d2s: dict[int, float] = {}
+    if not parts:
+        return rejected, d2s
+    k = len(parts[0].components)
+    threshold = chi2_threshold(probability, k)
+    round_d2: dict[int, float] = {}
+    while len(active) >= 2:
+        worst, worst_d2 = None, threshold
+        round_d2 = {}
+        for i in active:
+            d2 = mahalanobis_sq(parts[i], [parts[j] for j in active if j != i])
+            round_d2[i] = d2
+            if d2 > worst_d2 * (1.0 + 1e-9):  # strictly worse: ties keep the earliest
+                worst, worst_d2 = i, d2
+        if worst is None:
+            break
+        rejected[worst] = f"d² = {worst_d2:.1f} > χ²({k}, {probability:g}) = {threshold:.1f}"
+        d2s[worst] = worst_d2
+        active.remove(worst)
+        round_d2 = {}
+    d2s.update(round_d2)  # the last complete round's distances of the survivors
+    return rejected, d2s
+
+
+def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999) -> list[Verdict]:
+    """Reject the parts of reliable estimates that disagree with the others.
+
+    For each group (position, heading), every estimate measuring it is
+    tested against the product of the others in that group: if some exceed
+    the χ² quantile of ``probability``, the one with the largest d² is
+    rejected — between equal ones (two that disagree with each other only),
+    the *earliest*, i.e. the cheaper and less exact step of the hierarchy —
+    and the round repeats until the rest agree.
+    """
+    accepted = [set(e.components) for e in estimates]
+    reasons: list[list[str]] = [[] for _ in estimates]
+    d2_all: list[dict[str, float]] = [{} for _ in estimates]
+    for group, comps in GROUPS.items():
+        members = [i for i, e in enumerate(estimates) if e.measures(comps[0])]
+        parts = [estimates[i] if estimates[i].components == comps else estimates[i].marginal(comps) for i in members]
+        rejected, d2s = _gate_group(parts, probability)
+        for local, i in enumerate(members):
+            if local in d2s:
+                d2_all[i][group] = d2s[local]
+            if local in rejected:
+                accepted[i] -= set(comps)
+                reasons[i].append(f"{group} inconsistent with the other steps: {rejected[local]}")
+    verdicts = []
+    for i, e in enumerate(estimates):
+        acc = tuple(c for c in FULL if c in accepted[i])
+        if reasons[i]:
+            reason = "; ".join(reasons[i])
+        elif d2_all[i]:
+            reason = "consistent with the other steps"
+        else:
+            reason = "consistency not tested (no other step measures the same components)"
+        verdicts.append(Verdict(e, acc, reason, d2_all[i]))
+    return verdicts
+
+
+__all__ = ["GROUPS", "POSITION", "HEADING", "Verdict", "chi2_threshold", "consistency_gate", "mahalanobis_sq", "sigma_gate"]
