@@ -134,7 +134,12 @@ def _gate(
                 reports.append(StepReport(step.name, StepStatus.INCONSISTENT, est, verdict.reason, dt))
             else:
                 fused_inputs.append(part)
-                reason = est.reason if verdict is None or verdict.fully_accepted else f"partly fused: {verdict.reason}"
+                if verdict is None:
+                    reason = est.reason
+                elif verdict.fully_accepted:
+                    reason = "; ".join(r for r in (est.reason, verdict.reason) if r)
+                else:
+                    reason = f"partly fused: {verdict.reason}"
                 reports.append(StepReport(step.name, StepStatus.FUSED, est, reason, dt))
     return reports, fused_inputs
 
