@@ -1,12 +1,316 @@
-"""Step 2 of the hierarchy: the virtual compass → θ2 (issue: visual heading estimators)."""
+"""Step 2 of the hierarchy: the virtual compass → θ2 (WO 2015/158682, step 202).
+
+Points of interest are detected once in the reference panorama and, per
+query, in its views (camera images or a query panorama) after they are
+reprojected onto the panorama's grid (:mod:`factorloc.vision.strips`), so
+that a keypoint's column gives its azimuth directly: ``az_ref`` in the
+reference robot's frame, ``az_query`` in the query robot's frame (the
+camera's intrinsics and yaw are applied by the reprojection). Each matched
+pair votes for the relative heading ``θ = az_ref − az_query``; the densest
+mode of the votes (an inlier band around it) gives θ2, at least
+``min_inliers`` ≥ 2 pairs being required (the patent's claim).
+
+Seeding by θ1: with a reliable earlier heading θ̂ ± σ̂, a query point may
+only match reference points whose vote lies within
+``±max(min_window_rad, window_n_sigma·σ̂)`` of θ̂, which cuts time and false
+matches; without a seed the whole panorama is searched.
+
+σθ2: the inliers' spread ``s`` gives ``σ² = s²/n_eff + σ_floor²`` with
+``n_eff = min(n, max_effective_inliers)`` (vote errors from parallax are
+correlated, so more inliers stop helping) and ``σ ≥`` one column's angle.
+The world-frame heading is ``T_world_reference.theta + θ``.
+"""
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from factorloc.errors import ConfigError, InputError
+from factorloc.estimators.base import Hypotheses
+from factorloc.geometry import wrap_angle
+from factorloc.types import Estimate, Query, Reference
+from factorloc.vision import keypoints as kp
+from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
+
+log = logging.getLogger(__name__)
+
+STEP = "compass"
 
 
 @dataclass(frozen=True)
 class CompassConfig:
-    """Configuration of the virtual compass."""
+    """Configuration of the virtual compass (angles in radians).
+
+    Parameters
+    ----------
+    detector
+        ``"orb"`` (default: ~5× faster than SIFT at equal accuracy here, see
+        ``benchmarks/bench_vision.py``) or ``"sift"``.
+    n_features_reference, n_features_query
+        Keypoint budgets of the reference panorama and of each query view.
+    fast_threshold
+        ORB's FAST threshold (lower finds more corners on plain walls).
+    ratio
+        Lowe's ratio test on descriptor distances.
+    inlier_band_rad
+        Half-width of the vote consensus band.
+    window_n_sigma, min_window_rad
+        Seeded search half-window ``max(min_window_rad, window_n_sigma·σθ1)``;
+        a window ≥ π means an unseeded search.
+    min_inliers
+        Fewest inlier pairs for a reliable θ2 (≥ 2, the patent's claim).
+    min_inlier_ratio
+        Fewest inliers per match for a reliable θ2.
+    max_ambiguity
+        Unreliable when a separate vote mode has ≥ this fraction of the best one's support.
+    max_sigma_rad
+        Unreliable above this σθ2.
+    sigma_floor_rad, max_effective_inliers
+        The σ model (see module docstring).
+    """
 
     enabled: bool = True
+    detector: str = "orb"
+    n_features_reference: int = 4000
+    n_features_query: int = 1500
+    fast_threshold: int = 10
+    ratio: float = 0.8
+    inlier_band_rad: float = math.radians(1.5)
+    window_n_sigma: float = 3.0
+    min_window_rad: float = math.radians(3.0)
+    min_inliers: int = 8
+    min_inlier_ratio: float = 0.15
+    max_ambiguity: float = 0.5
+    max_sigma_rad: float = math.radians(2.0)
+    sigma_floor_rad: float = math.radians(0.1)
+    max_effective_inliers: int = 30
+
+    def __post_init__(self) -> None:
+        if self.detector not in kp.DETECTORS:
+            raise ConfigError(f"compass.detector must be one of {kp.DETECTORS}, got {self.detector!r}")
+        for name in ("n_features_reference", "n_features_query", "fast_threshold", "max_effective_inliers"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"compass.{name} must be >= 1, got {getattr(self, name)!r}")
+        if self.min_inliers < 2:
+            raise ConfigError(f"compass.min_inliers must be >= 2 (two pairs at least), got {self.min_inliers!r}")
+        if not 0.0 < self.ratio <= 1.0:
+            raise ConfigError(f"compass.ratio must be in (0, 1], got {self.ratio!r}")
+        for name in ("inlier_band_rad", "window_n_sigma", "min_window_rad", "max_sigma_rad", "sigma_floor_rad"):
+            if not getattr(self, name) > 0.0:
+                raise ConfigError(f"compass.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.min_inlier_ratio <= 1.0:
+            raise ConfigError(f"compass.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
+        if not 0.0 < self.max_ambiguity <= 1.0:
+            raise ConfigError(f"compass.max_ambiguity must be in (0, 1], got {self.max_ambiguity!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedCompass:
+    """Reference-only work of the compass: the panorama's keypoints and their azimuths.
+
+    ``azimuth_rad`` (N,) are in the reference robot's frame; ``descriptors``
+    N×D (uint8 for ORB, float32 for SIFT); ``problem`` says why the reference
+    cannot be used (no texture), else None.
+    """
+
+    grid: Grid
+    azimuth_rad: np.ndarray
+    descriptors: np.ndarray | None
+    theta_reference_rad: float
+    problem: str | None
+    config: CompassConfig
+
+
+def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
+    """Detect and describe the reference panorama's keypoints (with wrap-around)."""
+    if reference.panorama is None:
+        raise InputError(f"compass needs Reference.panorama, reference {reference.name!r} has none")
+    pano = reference.panorama
+    grid = Grid.of(pano)
+    gray = to_gray(pano.image_bgr)
+    problem = texture_problem(gray)
+    det = kp.make_detector(config.detector, config.n_features_reference, config.fast_threshold)
+    xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4)) if problem is None else (np.zeros((0, 2)), None)
+    if problem is None and (desc is None or len(xy) < config.min_inliers):
+        problem = f"reference panorama has only {len(xy)} keypoints"
+    az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
+    return PreparedCompass(grid, az, desc, reference.T_world_reference.theta, problem, config)
+
+
+def query_strips(query: Query, grid: Grid) -> tuple[list[Strip], list[str]]:
+    """The query's views reprojected onto ``grid``, and the reasons some were dropped."""
+    strips: list[Strip] = []
+    dropped: list[str] = []
+    for i, image in enumerate(query.images):
+        s = camera_strip(image, grid, source=f"images[{i}]")
+        if s is None:
+            dropped.append(f"images[{i}]: too small on the reference grid")
+            continue
+        problem = texture_problem(s.gray)
+        if problem:
+            dropped.append(f"images[{i}]: {problem}")
+            continue
+        strips.append(s)
+    if query.panorama is not None:
+        s = panorama_strip(query.panorama, grid)
+        if s is None:
+            dropped.append("panorama: no rows in common with the reference band")
+        else:
+            problem = texture_problem(s.gray)
+            if problem:
+                dropped.append(f"panorama: {problem}")
+            else:
+                strips.append(s)
+    return strips, dropped
+
+
+def estimate(
+    reference: Reference,
+    query: Query,
+    hypotheses: Hypotheses = Hypotheses(),
+    config: CompassConfig = CompassConfig(),
+    *,
+    prepared: PreparedCompass | None = None,
+) -> Estimate:
+    """θ2: the robot's world-frame heading from keypoint azimuth votes.
+
+    Parameters
+    ----------
+    reference
+        Must hold a panorama (BGR uint8); ``T_world_reference`` places it.
+    query
+        Camera images and/or a panorama (BGR uint8).
+    hypotheses
+        Earlier reliable estimates; :meth:`Hypotheses.heading` seeds the search window.
+    config
+        The compass configuration.
+    prepared
+        The result of :func:`prepare` for ``reference`` (computed if None).
+
+    Returns
+    -------
+    Estimate
+        Heading-only, world frame. Unreliable (with a reason, σ = π) when the
+        views have no texture or too few consistent pairs.
+
+    Raises
+    ------
+    InputError
+        When the reference has no panorama or the query neither images nor panorama.
+    """
+    if prepared is None:
+        prepared = prepare(reference, config)
+    if not query.images and query.panorama is None:
+        raise InputError(f"compass needs Query.images or Query.panorama, query {query.id!r} has neither")
+    return _estimate(prepared, query, hypotheses, config)
+
+
+def _seed(hypotheses: Hypotheses, theta_reference_rad: float) -> tuple[float, float, str] | None:
+    h = hypotheses.heading()
+    if h is None:
+        return None
+    theta, sigma, step = h
+    return float(wrap_angle(theta - theta_reference_rad)), sigma, step
+
+
+def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None, reason: str, **diag: Any) -> Estimate:
+    theta = seed[0] if seed is not None else 0.0
+    return Estimate.heading(
+        STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag
+    )
+
+
+def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:
+    seed = _seed(hypotheses, prepared.theta_reference_rad)
+    window = None
+    if seed is not None:
+        window = max(config.min_window_rad, config.window_n_sigma * seed[1])
+        if window >= math.pi:
+            window = None
+    base = {"seeded": window is not None, "window_rad": window, "detector": config.detector}
+    if prepared.problem:
+        return _unreliable(prepared, seed, f"reference: {prepared.problem}", **base)
+    strips, dropped = query_strips(query, prepared.grid)
+    if not strips:
+        return _unreliable(prepared, seed, "no usable query view: " + "; ".join(dropped), **base)
+    det = kp.make_detector(config.detector, config.n_features_query, config.fast_threshold)
+    az_q_list = []
+    desc_list = []
+    for s in strips:
+        xy, desc = kp.detect(s.gray, det, wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0)
+        if desc is None or len(xy) == 0:
+            continue
+        az_q_list.append(np.asarray(s.azimuth_of_column(xy[:, 0]), dtype=np.float64))
+        desc_list.append(desc)
+    n_query = int(sum(len(a) for a in az_q_list))
+    if n_query < config.min_inliers:
+        return _unreliable(prepared, seed, f"only {n_query} query keypoints", query_keypoints=n_query, **base)
+    az_q = np.concatenate(az_q_list)
+    desc_q = np.concatenate(desc_list)
+    az_r, desc_r = prepared.azimuth_rad, prepared.descriptors
+    allowed = None
+    if window is not None:
+        # a reference point is a candidate for a query point when its vote falls in the window
+        votes_all = wrap_angle(az_r[None, :] - az_q[:, None] - seed[0])
+        allowed = np.abs(votes_all) <= window + config.inlier_band_rad
+        used = allowed.any(axis=0)
+        az_r, desc_r, allowed = az_r[used], desc_r[used], allowed[:, used]
+    candidates = int(len(az_r))
+    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
+    diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
+    if len(qi) < 2:
+        return _unreliable(prepared, seed, f"only {len(qi)} matches (need ≥ 2 pairs)", inliers=0, **diag)
+    votes = np.asarray(wrap_angle(az_r[ri] - az_q[qi]), dtype=np.float64)
+    theta, inliers, runner_up = kp.vote_consensus(votes, config.inlier_band_rad)
+    n_in = int(inliers.sum())
+    resid = np.asarray(wrap_angle(votes[inliers] - theta))
+    spread = float(np.sqrt(np.mean(resid**2))) if n_in else math.pi
+    n_eff = min(n_in, config.max_effective_inliers)
+    sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2)
+    sigma = max(sigma, prepared.grid.rad_per_px)
+    ambiguity = runner_up / n_in if n_in else 1.0
+    diag.update(
+        inliers=n_in,
+        inlier_ratio=n_in / len(qi),
+        spread_rad=spread,
+        ambiguity=ambiguity,
+        theta_relative_rad=theta,
+    )
+    problems = []
+    if n_in < config.min_inliers:
+        problems.append(f"{n_in} inlier pairs < {config.min_inliers}")
+    if n_in / len(qi) < config.min_inlier_ratio:
+        problems.append(f"inlier ratio {n_in / len(qi):.2f} < {config.min_inlier_ratio:.2f}")
+    if ambiguity >= config.max_ambiguity:
+        problems.append(f"ambiguous: a second vote mode has {runner_up} pairs vs {n_in}")
+    if sigma > config.max_sigma_rad:
+        problems.append(f"σθ2 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
+    reliable = not problems
+    reason = f"{n_in} inlier pairs of {len(qi)} matches" if reliable else "; ".join(problems)
+    return Estimate.heading(
+        STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag
+    )
+
+
+class CompassStep:
+    """The virtual compass as a pipeline step (needs a reference panorama and query images or panorama)."""
+
+    name = STEP
+
+    def __init__(self, config: CompassConfig = CompassConfig()) -> None:
+        self.config = config
+
+    def prepare(self, reference: Reference) -> PreparedCompass | None:
+        if reference.panorama is None:
+            return None
+        return prepare(reference, self.config)
+
+    def estimate(self, prepared: PreparedCompass | None, query: Query, hypotheses: Hypotheses) -> Estimate | None:
+        if prepared is None or (not query.images and query.panorama is None):
+            return None
+        return _estimate(prepared, query, hypotheses, self.config)

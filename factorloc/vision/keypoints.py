@@ -1,0 +1,138 @@
+"""Points of interest with azimuths, descriptor matching and the vote consensus of the virtual compass.
+
+Keypoints of a 360° panorama are detected on a copy padded with its own
+columns (wrap-around), so that corners straddling azimuth ±π are found once
+and described with their true neighbourhood. Each keypoint's azimuth comes
+from its column (:class:`~factorloc.vision.strips.Grid` / :class:`~factorloc.vision.strips.Strip`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+
+from factorloc.errors import ConfigError
+from factorloc.geometry import wrap_angle
+
+DETECTORS = ("orb", "sift")
+
+
+def make_detector(kind: str, n_features: int, fast_threshold: int = 12) -> cv2.Feature2D:
+    """An OpenCV detector-descriptor: ``"orb"`` (binary, Hamming) or ``"sift"`` (float, L2)."""
+    if kind == "orb":
+        return cv2.ORB_create(nfeatures=int(n_features), fastThreshold=int(fast_threshold), edgeThreshold=15, patchSize=15)
+    if kind == "sift":
+        return cv2.SIFT_create(nfeatures=int(n_features), contrastThreshold=0.02)
+    raise ConfigError(f"detector must be one of {DETECTORS}, got {kind!r}")
+
+
+def norm_of(kind: str) -> int:
+    """The descriptor distance of ``kind``."""
+    return cv2.NORM_HAMMING if kind == "orb" else cv2.NORM_L2
+
+
+def detect(gray: np.ndarray, detector: cv2.Feature2D, *, wrap_pad_px: int = 0) -> tuple[np.ndarray, np.ndarray | None]:
+    """Keypoint positions (N×2 float64, x = column, y = row) and descriptors of a grey image.
+
+    With ``wrap_pad_px > 0`` the image is treated as horizontally periodic:
+    it is padded by that many of its own columns on each side and only the
+    keypoints whose column lies in [0, W) are kept.
+    """
+    img = np.clip(gray, 0, 255).astype(np.uint8)
+    pad = int(wrap_pad_px)
+    if pad > 0:
+        img = cv2.copyMakeBorder(img, 0, 0, pad, pad, cv2.BORDER_WRAP)
+    kps, desc = detector.detectAndCompute(img, None)
+    if desc is None or len(kps) == 0:
+        return np.zeros((0, 2)), None
+    xy = np.array([kp.pt for kp in kps], dtype=np.float64)
+    if pad > 0:
+        xy[:, 0] -= pad
+        keep = (xy[:, 0] >= 0.0) & (xy[:, 0] < gray.shape[1])
+        xy, desc = xy[keep], desc[keep]
+    return xy, desc
+
+
+def match(
+    query_desc: np.ndarray,
+    ref_desc: np.ndarray,
+    norm: int,
+    ratio: float,
+    allowed: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-neighbour matches passing Lowe's ratio test, optionally among allowed pairs only.
+
+    Parameters
+    ----------
+    query_desc, ref_desc
+        Descriptors (Nq×D, Nr×D).
+    norm
+        ``cv2.NORM_HAMMING`` or ``cv2.NORM_L2``.
+    ratio
+        Keep a match when its distance < ``ratio`` × the second-best distance.
+    allowed
+        Optional Nq×Nr boolean mask: the candidate reference points of each
+        query point (the seeded search window). A query point with a single
+        candidate is matched to it only if the distance is small (no ratio test possible).
+
+    Returns
+    -------
+    (query_index, ref_index)
+        Integer arrays of equal length.
+    """
+    if query_desc is None or ref_desc is None or len(query_desc) == 0 or len(ref_desc) == 0:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    matcher = cv2.BFMatcher(norm, crossCheck=False)
+    mask = None if allowed is None else np.ascontiguousarray(allowed, dtype=np.uint8)
+    k = 2 if len(ref_desc) > 1 else 1
+    if mask is None:
+        knn = matcher.knnMatch(query_desc, ref_desc, k=k)
+    else:
+        knn = matcher.knnMatch(query_desc, ref_desc, k=k, mask=mask)
+    max_single = 0.2 * 8 * query_desc.shape[1] if norm == cv2.NORM_HAMMING else 250.0
+    qi, ri = [], []
+    for pair in knn:  # one short list per query point (not a pixel loop)
+        if not pair:
+            continue
+        if len(pair) == 1:
+            ok = pair[0].distance < max_single
+        else:
+            ok = pair[0].distance < ratio * pair[1].distance
+        if ok:
+            qi.append(pair[0].queryIdx)
+            ri.append(pair[0].trainIdx)
+    return np.asarray(qi, dtype=int), np.asarray(ri, dtype=int)
+
+
+def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) -> tuple[float, np.ndarray, int]:
+    """The densest mode of heading votes and its inliers.
+
+    Each vote ``θ_i = az_ref − az_query`` counts the votes within ``±band_rad``
+    of it (circularly); the vote with most neighbours seeds the mode, which is
+    refined as the circular mean of its inliers (``iterations`` times).
+
+    Returns
+    -------
+    (theta_rad, inliers, runner_up)
+        The mode (wrapped), a boolean inlier mask, and the largest support of
+        a vote further than 3 bands from the mode (an ambiguity measure).
+    """
+    v = np.asarray(votes_rad, dtype=np.float64)
+    if v.size == 0:
+        return 0.0, np.zeros(0, dtype=bool), 0
+    diff = np.abs(wrap_angle(v[:, None] - v[None, :]))
+    support = (diff <= band_rad).sum(axis=1)
+    k = int(np.argmax(support))
+    theta = float(v[k])
+    inliers = np.abs(wrap_angle(v - theta)) <= band_rad
+    for _ in range(iterations):
+        if not inliers.any():
+            break
+        theta = float(wrap_angle(theta + math.atan2(np.sin(wrap_angle(v[inliers] - theta)).mean(),
+                                                    np.cos(wrap_angle(v[inliers] - theta)).mean())))
+        inliers = np.abs(wrap_angle(v - theta)) <= band_rad
+    far = np.abs(wrap_angle(v - theta)) > 3.0 * band_rad
+    runner_up = int(support[far].max()) if far.any() else 0
+    return theta, inliers, runner_up
