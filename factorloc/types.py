@@ -639,6 +639,12 @@ def _interval_probability(variance: float, half_width: float) -> float:
 
 
 def _disc_probability(cov2: np.ndarray, radius: float) -> float:
+    """P(|e| ≤ radius) for e ~ N(0, cov2) in 2D, by Gauss–Legendre quadrature.
+
+    Along the principal axes (σ1 ≤ σ2): P = ∫ φ(u; σ2) · erf(√(r²−u²) / (σ1√2)) du over
+    |u| ≤ r. With u = r·sin φ the integrand is smooth; when r > 12σ2 the range is cut
+    to |u| ≤ 12σ2 (the rest weighs < 1e-31), where √(r²−u²) is smooth already.
+    """
     if not np.all(np.isfinite(cov2)):
         return 0.0
     if radius == 0.0:
@@ -647,10 +653,14 @@ def _disc_probability(cov2: np.ndarray, radius: float) -> float:
     s1, s2 = math.sqrt(max(l1, 0.0)), math.sqrt(max(l2, 0.0))
     if s2 == 0.0:
         return 1.0
-    # integrate over the axis of the larger variance u ∈ [-r, r]: P = ∫ φ(u; s2) · P(|v| ≤ sqrt(r²-u²); s1) du
-    limit = min(radius, 12.0 * s2)  # beyond 12σ the density is < 1e-31
-    u = limit * _GL_NODES
+    if radius <= 12.0 * s2:
+        phi = 0.5 * math.pi * _GL_NODES
+        u = radius * np.sin(phi)
+        jac = radius * np.cos(phi) * 0.5 * math.pi
+    else:
+        u = 12.0 * s2 * _GL_NODES
+        jac = np.full_like(u, 12.0 * s2)
     half = np.sqrt(np.maximum(radius * radius - u * u, 0.0))
-    inner = np.ones_like(u) if s1 == 0.0 else np.vectorize(math.erf)(half / (s1 * math.sqrt(2.0)))
+    inner = np.ones_like(u) if s1 == 0.0 else np.array([math.erf(h / (s1 * math.sqrt(2.0))) for h in half])
     density = np.exp(-0.5 * (u / s2) ** 2) / (s2 * math.sqrt(2.0 * math.pi))
-    return float(np.clip(limit * np.sum(_GL_WEIGHTS * density * inner), 0.0, 1.0))
+    return float(np.clip(np.sum(_GL_WEIGHTS * jac * density * inner), 0.0, 1.0))

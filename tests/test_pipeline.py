@@ -1,0 +1,142 @@
+"""The hierarchy: order, seeding with reliable hypotheses only, skipping, failures, fusion."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pytest
+
+from factorloc import (
+    Config,
+    Estimate,
+    InputError,
+    Localizer,
+    Odometry,
+    Pose2,
+    ProductFusion,
+    Query,
+    Reference,
+    Scan,
+    StepStatus,
+    fuse,
+    localize,
+)
+from factorloc.estimators.base import Hypotheses, Step
+from factorloc.pipeline import default_steps
+
+REF = Reference(scan=Scan(np.array([[1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])))
+
+
+class Recorder:
+    """A step that records the hypotheses it was given and returns a fixed estimate."""
+
+    def __init__(self, name: str, estimate: Estimate | None, fail: bool = False) -> None:
+        self.name = name
+        self._estimate = estimate
+        self.fail = fail
+        self.seen: list[Hypotheses] = []
+        self.prepared_with: Reference | None = None
+
+    def prepare(self, reference: Reference) -> Any:
+        self.prepared_with = reference
+        return "prepared"
+
+    def estimate(self, prepared: Any, query: Query, hypotheses: Hypotheses) -> Estimate | None:
+        assert prepared == "prepared"
+        self.seen.append(hypotheses)
+        if self.fail:
+            raise InputError("all-black image")
+        return self._estimate
+
+
+def test_steps_run_in_order_and_receive_only_reliable_hypotheses() -> None:
+    good = Recorder("a", Estimate.heading("a", 0.10, 0.01))
+    bad = Recorder("b", Estimate.heading("b", 2.0, 0.01, reliable=False, reason="peak 0.3 < Ct"))
+    last = Recorder("c", Estimate.position("c", 1.0, 2.0, 0.02, 0.02))
+    loc = localize(REF, Query(id="q"), steps=[good, bad, last])
+    assert [r.name for r in loc.steps] == ["a", "b", "c"]
+    assert last.seen[0].heading() == (pytest.approx(0.10), pytest.approx(0.01), "a")  # b was not passed on
+    assert loc.step("b").status is StepStatus.UNRELIABLE and "Ct" in loc.step("b").reason
+    assert loc.step("a").fused and loc.step("c").fused
+    assert np.allclose(loc.pose.as_array(), [1.0, 2.0, 0.10], atol=1e-9)
+    assert all(r.seconds >= 0.0 for r in loc.steps)
+
+
+def test_blind_mode_gives_no_hypotheses() -> None:
+    a = Recorder("a", Estimate.heading("a", 0.1, 0.01))
+    b = Recorder("b", Estimate.heading("b", 0.1, 0.01))
+    Localizer(REF, steps=[a, b]).localize(Query(), seeded=False)
+    assert b.seen[0].heading() is None
+
+
+def test_absent_inputs_skip_a_step_and_a_failing_step_is_reported_not_fused() -> None:
+    skip = Recorder("camera", None)
+    broken = Recorder("broken", None, fail=True)
+    odo = Recorder("odo", Estimate.pose("odo", Pose2(1, 2, 0.3), 0.05, 0.05, 0.02))
+    loc = localize(REF, Query(), steps=[odo, skip, broken])
+    assert loc.step("camera").status is StepStatus.SKIPPED
+    assert loc.step("broken").status is StepStatus.FAILED and "all-black" in loc.step("broken").reason
+    assert loc.determined
+
+
+def test_odometry_only_query_returns_the_odometry_pose_and_sigmas() -> None:
+    odo = Odometry.from_distance(Pose2(1.0, 2.0, 0.3), distance_m=1.0, rotation_rad=0.5)
+    loc = localize(REF, Query(odometry=odo))
+    assert np.allclose(loc.pose.as_array(), [1.0, 2.0, 0.3])
+    assert np.allclose(loc.sigmas, [odo.sigma_x_m, odo.sigma_y_m, odo.sigma_theta_rad])
+    assert loc.fused_with == "graph" and loc.config == Config()
+
+
+def test_a_heading_only_result_is_under_determined_in_position_not_a_crash() -> None:
+    loc = localize(REF, Query(), steps=[Recorder("compass", Estimate.heading("compass", 1.0, 0.01))])
+    assert {c.value for c in loc.undetermined} == {"x", "y"}
+    assert math.isinf(loc.sigmas[0]) and math.isclose(loc.sigmas[2], 0.01)
+    assert not loc.determined and loc.certainty(1.0, 1.0) == 0.0
+
+
+def test_nothing_reliable_gives_a_fully_undetermined_result() -> None:
+    loc = localize(REF, Query(), steps=[Recorder("compass", Estimate.heading("compass", 1.0, 0.01, reliable=False))])
+    assert len(loc.undetermined) == 3 and np.all(np.isinf(loc.sigmas))
+
+
+def test_unreliable_odometry_by_sigma_threshold() -> None:
+    odo = Odometry(Pose2(), 1.0, 1.0, 0.1)
+    loc = localize(REF, Query(odometry=odo), Config.from_dict({"odometry": {"max_sigma_position_m": 0.06}}))
+    assert loc.step("odometry").status is StepStatus.UNRELIABLE
+    assert "σ position 1.000 m > 0.060 m" in loc.step("odometry").reason
+
+
+def test_strategy_object_overrides_config_and_bad_arguments_raise() -> None:
+    loc = localize(REF, Query(odometry=Odometry(Pose2(), 0.1, 0.1, 0.1)), strategy=ProductFusion())
+    assert loc.fused_with == "product"
+    with pytest.raises(InputError, match="reference"):
+        localize("ref", Query())  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="query"):
+        localize(REF, None)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="Step protocol"):
+        Localizer(REF, steps=[object()])  # type: ignore[list-item]
+
+
+def test_default_steps_follow_the_patent_order_and_implement_the_protocol() -> None:
+    steps = default_steps(Config())
+    names = [s.name for s in steps]
+    order = ["odometry", "compass", "correlation", "icp"]
+    assert names == [n for n in order if n in names] and names[0] == "odometry"
+    assert all(isinstance(s, Step) for s in steps)
+    assert default_steps(Config.from_dict({"odometry": {"enabled": False}}))[:1] != steps[:1]
+
+
+def test_fuse_reports_verdicts_for_each_estimate() -> None:
+    ests = [
+        Estimate.pose("odometry", Pose2(3.0, 0.5, 0.17), 0.05, 0.05, 0.05),
+        Estimate.position("icp", 1.03, 0.48, 0.02, 0.02),
+        Estimate.heading("compass", 0.2, 0.02, reliable=False, reason="2 inliers"),
+    ]
+    loc = fuse(ests)
+    assert [r.status for r in loc.steps] == [StepStatus.FUSED, StepStatus.FUSED, StepStatus.UNRELIABLE]
+    assert "partly fused" in loc.steps[0].reason  # its position disagreed with ICP's, its heading was kept
+    assert np.allclose([loc.pose.x, loc.pose.y, loc.pose.theta], [1.03, 0.48, 0.17], atol=1e-9)
+    with pytest.raises(InputError, match=r"estimates\[0\]"):
+        fuse([{"step": "a"}])  # type: ignore[list-item]
