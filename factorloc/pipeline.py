@@ -21,6 +21,8 @@ import numpy as np
 from factorloc.config import Config, GatingConfig
 from factorloc.errors import FactorlocError, InputError
 from factorloc.estimators.base import Hypotheses, Step
+from factorloc.estimators.compass import CompassStep
+from factorloc.estimators.correlation import CorrelationStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.fusion.base import FusionStrategy
 from factorloc.fusion.graph import GraphFusion
@@ -36,6 +38,8 @@ def default_steps(config: Config) -> list[Step]:
     """The patent's hierarchy, cheapest first, built from ``config`` (disabled steps left out)."""
     steps: list[tuple[bool, Step]] = [
         (config.odometry.enabled, OdometryStep(config.odometry)),
+        (config.compass.enabled, CompassStep(config.compass)),
+        (config.correlation.enabled, CorrelationStep(config.correlation)),
     ]
     return [step for enabled, step in steps if enabled]
 

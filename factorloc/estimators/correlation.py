@@ -1,12 +1,410 @@
-"""Step 3 of the hierarchy: panorama correlation → θ3 and scale (issue: visual heading estimators)."""
+"""Step 3 of the hierarchy: panorama correlation → θ3 and scale (WO 2015/158682, step 204, claim 6).
+
+The query's views are reprojected onto the reference panorama's grid
+(:mod:`factorloc.vision.strips`), where a heading θ is a horizontal shift.
+Each view is correlated (zero-mean normalized cross-correlation, OpenCV
+``TM_CCOEFF_NORMED``, horizontally periodic: :mod:`factorloc.vision.ncc`)
+against the reference over two image pyramids, as in claim 6:
+
+* the reference downscaled in ``pyramid_steps`` steps of ``pyramid_ratio``,
+  each level correlated with the full-size query (scale ``s = ratioᵏ < 1``:
+  the robot is further from what it sees than the reference was), and
+* the query downscaled in the same steps, each level correlated with the
+  full-size reference (``s = ratio⁻ᵏ > 1``: the robot moved towards it).
+
+Pyramid level ``m ∈ [−n, n]`` thus hypothesises the scale ``s = ratio⁻ᵐ``. For
+each level the views' correlation curves (best vertical offset per shift,
+in a band around the horizon) are resampled onto one heading axis and
+averaged (weights: template areas). The best (level, heading) gives θ3,
+refined to sub-pixel by a parabola through the peak and its neighbours; the
+scale is refined by a parabola in ``log s`` over the neighbouring levels.
+
+σθ3 from the peak's sharpness: with peak value ``ρ`` and curvature ``κ``
+(per pixel² of the level), ``σ = max(sigma_gain·√((1 − ρ)/κ)·Δ, Δ)`` where
+``Δ`` is the angle of one pixel at the chosen level (never below it).
+Reliability: ``ρ ≥ min_peak`` (the patent's Ct), the best separated
+secondary peak at least ``ambiguity_margin`` below ``ρ``, ``σ ≤ max_sigma_rad``,
+and (seeded) the peak not on the edge of the searched window.
+
+Seeded by the latest reliable heading θ̂ ± σ̂ (θ2, else θ1) the search is
+limited to ``θ̂ ± max(min_window_rad, window_n_sigma·σ̂)``; without a seed the
+whole panorama is searched. The world-frame heading is
+``T_world_reference.theta + θ``.
+"""
 
 from __future__ import annotations
 
+import logging
+import math
 from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from factorloc.errors import ConfigError, InputError
+from factorloc.estimators.base import Hypotheses
+from factorloc.estimators.compass import query_strips
+from factorloc.geometry import wrap_angle
+from factorloc.types import Estimate, Query, Reference
+from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
+from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
+
+log = logging.getLogger(__name__)
+
+STEP = "correlation"
 
 
 @dataclass(frozen=True)
 class CorrelationConfig:
-    """Configuration of the panorama correlation."""
+    """Configuration of the panorama correlation (angles in radians).
+
+    Parameters
+    ----------
+    pyramid_steps
+        Downscaling steps of each pyramid (0 = plain correlation at scale 1).
+    pyramid_ratio
+        Downscaling ratio per step, in (0, 1).
+    min_peak
+        The threshold Ct in [−1, 1] the peak correlation must reach.
+    ambiguity_margin
+        Ambiguous (unreliable) when a separated secondary peak is within this of the best.
+    window_n_sigma, min_window_rad
+        Seeded search half-window ``max(min_window_rad, window_n_sigma·σ)``.
+    max_sigma_rad
+        Unreliable above this σθ3.
+    sigma_gain
+        Multiplies the curvature-based σ (calibrated so that errors are ≈ σ).
+    vertical_search_frac
+        Vertical offsets searched around the horizon alignment, as a fraction of the panorama height.
+    """
 
     enabled: bool = True
+    pyramid_steps: int = 3
+    pyramid_ratio: float = 0.85
+    min_peak: float = 0.5
+    ambiguity_margin: float = 0.05
+    window_n_sigma: float = 3.0
+    min_window_rad: float = math.radians(5.0)
+    max_sigma_rad: float = math.radians(2.0)
+    sigma_gain: float = 1.0
+    vertical_search_frac: float = 0.1
+
+    def __post_init__(self) -> None:
+        if self.pyramid_steps < 0:
+            raise ConfigError(f"correlation.pyramid_steps must be >= 0, got {self.pyramid_steps!r}")
+        if not 0.0 < self.pyramid_ratio < 1.0:
+            raise ConfigError(f"correlation.pyramid_ratio must be in (0, 1), got {self.pyramid_ratio!r}")
+        if self.pyramid_ratio**self.pyramid_steps < 0.2:
+            raise ConfigError(
+                f"correlation.pyramid_ratio**pyramid_steps must be >= 0.2, got {self.pyramid_ratio**self.pyramid_steps:.3f}"
+            )
+        if not -1.0 <= self.min_peak <= 1.0:
+            raise ConfigError(f"correlation.min_peak (Ct) must be in [-1, 1], got {self.min_peak!r}")
+        for name in ("ambiguity_margin", "vertical_search_frac"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"correlation.{name} must be in [0, 1], got {getattr(self, name)!r}")
+        for name in ("window_n_sigma", "min_window_rad", "max_sigma_rad", "sigma_gain"):
+            if not getattr(self, name) > 0.0:
+                raise ConfigError(f"correlation.{name} must be > 0, got {getattr(self, name)!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedCorrelation:
+    """The reference pyramid: level k is the grey panorama downscaled by ``ratioᵏ`` (k = 0 … n).
+
+    ``scales`` holds each level's actual (width, height) ratio to level 0.
+    """
+
+    grid: Grid
+    levels: tuple[np.ndarray, ...]
+    scales: tuple[tuple[float, float], ...]
+    theta_reference_rad: float
+    problem: str | None
+    config: CorrelationConfig
+
+
+def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig()) -> PreparedCorrelation:
+    """Build the reference panorama's pyramid (grey float32)."""
+    if reference.panorama is None:
+        raise InputError(f"correlation needs Reference.panorama, reference {reference.name!r} has none")
+    grid = Grid.of(reference.panorama)
+    gray = to_gray(reference.panorama.image_bgr)
+    levels = [gray]
+    scales = [(1.0, 1.0)]
+    for k in range(1, config.pyramid_steps + 1):
+        r = config.pyramid_ratio**k
+        w, h = max(8, int(round(grid.width_px * r))), max(8, int(round(grid.height_px * r)))
+        levels.append(cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA))
+        scales.append((w / grid.width_px, h / grid.height_px))
+    problem = texture_problem(gray)
+    return PreparedCorrelation(grid, tuple(levels), tuple(scales), reference.T_world_reference.theta, problem, config)
+
+
+@dataclass
+class _Curve:
+    """One pyramid level's combined correlation curve over headings ``θ(x) = θ_s − (x − x_c)·β``."""
+
+    m: int
+    x: np.ndarray  # integer shifts of the first view
+    c: np.ndarray  # combined score per shift
+    theta_s: float
+    x_c: float
+    beta: float  # rad per shift
+    pixel_rad: float  # angle of one pixel at this level (the coarser of template and reference)
+    periodic: bool
+    positions: int  # correlation positions evaluated (shifts × vertical offsets × views)
+
+    def theta(self, x: float | np.ndarray) -> float | np.ndarray:
+        return wrap_angle(self.theta_s - (np.asarray(x, dtype=np.float64) - self.x_c) * self.beta)
+
+
+def estimate(
+    reference: Reference,
+    query: Query,
+    hypotheses: Hypotheses = Hypotheses(),
+    config: CorrelationConfig = CorrelationConfig(),
+    *,
+    prepared: PreparedCorrelation | None = None,
+) -> Estimate:
+    """θ3 and the scale factor from correlating the query's views with the reference panorama.
+
+    Parameters
+    ----------
+    reference
+        Must hold a panorama (BGR uint8); ``T_world_reference`` places it.
+    query
+        Camera images and/or a panorama (BGR uint8).
+    hypotheses
+        Earlier reliable estimates; :meth:`Hypotheses.heading` limits the search band.
+    config
+        The correlation configuration.
+    prepared
+        The result of :func:`prepare` for ``reference`` (computed if None).
+
+    Returns
+    -------
+    Estimate
+        Heading-only, world frame; ``diagnostics`` hold ``peak``, ``second_peak``,
+        ``scale`` (query magnification vs the reference, > 1 when closer),
+        ``level``, ``searched_rad`` and ``searched_positions``.
+
+    Raises
+    ------
+    InputError
+        When the reference has no panorama or the query neither images nor panorama.
+    """
+    if prepared is None:
+        prepared = prepare(reference, config)
+    if not query.images and query.panorama is None:
+        raise InputError(f"correlation needs Query.images or Query.panorama, query {query.id!r} has neither")
+    return _estimate(prepared, query, hypotheses, config)
+
+
+def _unreliable(prepared: PreparedCorrelation, theta: float, reason: str, **diag: Any) -> Estimate:
+    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag)
+
+
+def _template(strip: Strip, m: int, prepared: PreparedCorrelation, config: CorrelationConfig) -> tuple[np.ndarray, float] | None:
+    """The view's template at level m and its width scale (None when it cannot be used there)."""
+    t = strip.gray
+    if m > 0:
+        q = config.pyramid_ratio**m
+        w, h = int(round(t.shape[1] * q)), int(round(t.shape[0] * q))
+        if w < 8 or h < 8:
+            return None
+        t = cv2.resize(t, (w, h), interpolation=cv2.INTER_AREA)
+    return t, t.shape[1] / strip.width_px
+
+
+def _level_curve(
+    prepared: PreparedCorrelation,
+    strips: list[Strip],
+    m: int,
+    seed: tuple[float, float] | None,
+    config: CorrelationConfig,
+) -> _Curve | None:
+    grid = prepared.grid
+    k = max(0, -m)
+    ref = prepared.levels[k]
+    sx, sy = prepared.scales[k]
+    h_ref, w_ref = ref.shape
+    beta = 2.0 * math.pi / w_ref
+    curves = []
+    total = 0
+    first = None
+    for strip in strips:
+        if strip.full_circle and m != 0:
+            continue  # a 360° view has no single scale: only level 0
+        tpl = _template(strip, m, prepared, config)
+        if tpl is None:
+            continue
+        t, sq = tpl
+        sq_y = t.shape[0] / strip.height_px
+        # vertical placement: align the horizons (grid row H/2) of template and reference level
+        hor_t = (0.5 * grid.height_px - strip.row0 + 0.5) * sq_y - 0.5
+        hor_r = (0.5 * grid.height_px + 0.5) * sy - 0.5
+        margin = int(math.ceil(config.vertical_search_frac * h_ref))
+        if t.shape[0] > h_ref - 2:  # crop the template around its horizon to fit
+            keep = h_ref - 2
+            top = int(np.clip(round(hor_t - keep / 2), 0, t.shape[0] - keep))
+            t = t[top : top + keep]
+            hor_t -= top
+        dy0 = int(round(hor_r - hor_t))
+        dy_lo, dy_hi = max(0, dy0 - margin), min(h_ref - t.shape[0], dy0 + margin)
+        if dy_hi < dy_lo or t.shape[1] >= 2 * w_ref or texture_problem(t) is not None:
+            continue
+        c_t = (t.shape[1] - 1) / 2.0
+        a_c = float(strip.azimuth_of_column((c_t + 0.5) / sq - 0.5))
+        # θ(x) = A − β·x for template column 0 on reference-level column x
+        A = grid.azimuth_col0_rad - 2.0 * math.pi * ((c_t + 0.5) / sx - 0.5) / grid.width_px - a_c
+        if first is None:
+            theta_s = seed[0] if seed is not None else float(wrap_angle(A))
+            half = None if seed is None else seed[1] / beta
+            if half is not None and 2 * half + 3 >= w_ref:
+                half = None
+            first = (theta_s, half)
+        theta_s, half = first
+        x_c = float(wrap_angle(A - theta_s)) / beta
+        if half is None:
+            x_lo, x_hi = 0, w_ref - 1
+        else:
+            x_lo, x_hi = int(math.floor(x_c - half)) - 1, int(math.ceil(x_c + half)) + 1
+        band = np.ascontiguousarray(ref[dy_lo : dy_hi + t.shape[0]])
+        scores = correlate_wrapped(band, np.ascontiguousarray(t), x_lo, x_hi)
+        total += scores.size
+        curves.append((np.arange(x_lo, x_hi + 1), scores.max(axis=0).astype(np.float64), x_c, float(t.size), sq))
+    if not curves:
+        return None
+    x0, c0, xc0, _, _ = curves[0]
+    periodic = first[1] is None
+    combined = np.zeros_like(c0)
+    weights = 0.0
+    for x, c, xc, wgt, _ in curves:
+        at = x0 + (xc - xc0)
+        if periodic:
+            vals = np.interp(np.mod(at, w_ref), np.append(x, w_ref), np.append(c, c[0]))
+        else:
+            vals = np.interp(at, x, c, left=-1.0, right=-1.0)
+        combined += wgt * vals
+        weights += wgt
+    combined /= weights
+    min_sq = min(sq for *_, sq in curves)
+    pixel = 2.0 * math.pi / (grid.width_px * min(sx, min_sq))
+    return _Curve(m, x0, combined, first[0], xc0, beta, pixel, periodic, total)
+
+
+def _lobe_mask(c: np.ndarray, k: int, periodic: bool, min_half: int) -> np.ndarray:
+    """Samples of the peak's own lobe: walk down both sides while the curve decreases (at least ``min_half``)."""
+    n = c.size
+    mask = np.zeros(n, dtype=bool)
+    mask[k] = True
+    for step in (-1, 1):
+        i, prev, walked = k, c[k], 0
+        while walked < n - 1:
+            j = i + step
+            if periodic:
+                j %= n
+            elif not 0 <= j < n:
+                break
+            if c[j] > prev and walked >= min_half:
+                break
+            mask[j] = True
+            prev, i, walked = c[j], j, walked + 1
+    return mask
+
+
+def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses, config: CorrelationConfig) -> Estimate:
+    h = hypotheses.heading()
+    seed = None
+    if h is not None:
+        half = max(config.min_window_rad, config.window_n_sigma * h[1])
+        if half < math.pi:
+            seed = (float(wrap_angle(h[0] - prepared.theta_reference_rad)), half)
+    theta_fallback = seed[0] if seed is not None else 0.0
+    base: dict[str, Any] = {"seeded": seed is not None, "window_rad": None if seed is None else seed[1]}
+    if prepared.problem:
+        return _unreliable(prepared, theta_fallback, f"reference: {prepared.problem}", **base)
+    strips, dropped = query_strips(query, prepared.grid)
+    base["dropped_views"] = dropped
+    if not strips:
+        return _unreliable(prepared, theta_fallback, "no usable query view: " + "; ".join(dropped), **base)
+    n = config.pyramid_steps
+    curves = [cv for m in range(-n, n + 1) if (cv := _level_curve(prepared, strips, m, seed, config)) is not None]
+    if not curves:
+        return _unreliable(prepared, theta_fallback, "no view fits the reference pyramid", **base)
+    searched = sum(cv.positions for cv in curves)
+    base.update(searched_positions=int(searched), searched_rad=2.0 * math.pi if seed is None else 2.0 * seed[1])
+    best = max(curves, key=lambda cv: float(cv.c.max()))
+    k = int(np.argmax(best.c))
+    peak = float(best.c[k])
+    nb = best.c.size
+    at_edge = not best.periodic and (k == 0 or k == nb - 1)
+    if at_edge:
+        delta, kappa = 0.0, 0.0
+    else:
+        ym, yp = best.c[(k - 1) % nb], best.c[(k + 1) % nb]
+        delta, kappa = parabolic_peak(float(ym), peak, float(yp))
+    theta = float(best.theta(best.x[k] + delta))
+    # ambiguity: the best peak outside the main lobe
+    lobe = _lobe_mask(best.c, k, best.periodic, min_half=3)
+    second = float(best.c[~lobe].max()) if (~lobe).any() else None
+    # scale: parabola in level index over the levels' values at θ
+    values = {}
+    for cv in curves:
+        near = np.abs(wrap_angle(cv.theta(cv.x) - theta)) <= 2.0 * cv.beta
+        values[cv.m] = float(cv.c[near].max()) if near.any() else -1.0
+    m_ref = float(best.m)
+    if best.m - 1 in values and best.m + 1 in values:
+        dm, _ = parabolic_peak(values[best.m - 1], values[best.m], values[best.m + 1])
+        m_ref += dm
+    scale = config.pyramid_ratio ** (-m_ref)
+    if kappa > 0.0:
+        sigma_px = config.sigma_gain * math.sqrt(max(1.0 - peak, 1e-3) / kappa)
+        sigma = max(sigma_px * best.beta, best.pixel_rad)
+    else:
+        sigma = math.pi
+    diag = dict(
+        base,
+        peak=peak,
+        second_peak=second,
+        level=best.m,
+        scale=scale,
+        curvature_per_px2=kappa,
+        pixel_rad=best.pixel_rad,
+        level_peaks={str(m): v for m, v in sorted(values.items())},
+        views=len(strips),
+        theta_relative_rad=theta,
+    )
+    problems = []
+    if peak < config.min_peak:
+        problems.append(f"peak {peak:.3f} < Ct {config.min_peak:.3f}")
+    if second is not None and peak - second < config.ambiguity_margin:
+        problems.append(f"ambiguous: secondary peak {second:.3f} within {config.ambiguity_margin:.3f} of {peak:.3f}")
+    if at_edge:
+        problems.append("peak on the edge of the seeded window")
+    if sigma > config.max_sigma_rad:
+        problems.append(f"σθ3 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
+    reliable = not problems
+    margin = "no secondary peak in the window" if second is None else f"secondary peak {second:.3f}"
+    reason = f"peak {peak:.3f} ≥ Ct {config.min_peak:.2f}, {margin}" if reliable else "; ".join(problems)
+    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag)
+
+
+class CorrelationStep:
+    """Panorama correlation as a pipeline step (needs a reference panorama and query images or panorama)."""
+
+    name = STEP
+
+    def __init__(self, config: CorrelationConfig = CorrelationConfig()) -> None:
+        self.config = config
+
+    def prepare(self, reference: Reference) -> PreparedCorrelation | None:
+        if reference.panorama is None:
+            return None
+        return prepare(reference, self.config)
+
+    def estimate(self, prepared: PreparedCorrelation | None, query: Query, hypotheses: Hypotheses) -> Estimate | None:
+        if prepared is None or (not query.images and query.panorama is None):
+            return None
+        return _estimate(prepared, query, hypotheses, self.config)
