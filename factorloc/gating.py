@@ -19,10 +19,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.stats import chi2
 
+from factorloc.fusion.base import heading_anchor, unwrap_values
 from factorloc.fusion.product import ProductFusion
 from factorloc.geometry import wrap_angle
 from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
@@ -53,6 +55,7 @@ def sigma_gate(
     return (not problems, "; ".join(problems))
 
 
+@lru_cache(maxsize=64)
 def chi2_threshold(probability: float, dof: int) -> float:
     """The χ² quantile with ``dof`` degrees of freedom."""
     return float(chi2.ppf(probability, dof))
@@ -101,20 +104,36 @@ class Verdict:
 
 
 def _gate_group(parts: list[Estimate], probability: float) -> tuple[dict[int, str], dict[int, float]]:
-    """Worst-first rejection inside one group of estimates of the same components."""
-    active = list(range(len(parts)))
+    """Worst-first rejection inside one group of estimates of the same components.
+
+    Leave-one-out products are computed in information form: the total
+    information and information-weighted sum of the active estimates, minus
+    the estimate's own (headings unwrapped around the most certain one).
+    """
     rejected: dict[int, str] = {}
     d2s: dict[int, float] = {}
-    if not parts:
+    if len(parts) < 2:
         return rejected, d2s
     k = len(parts[0].components)
     threshold = chi2_threshold(probability, k)
+    is_heading = parts[0].components == HEADING
+    anchor = heading_anchor(parts) if is_heading else 0.0
+    z = np.array([unwrap_values(p, anchor) for p in parts])  # n×k
+    lam = np.array([np.linalg.inv(p.covariance) for p in parts])  # n×k×k
+    lam_z = np.einsum("nij,nj->ni", lam, z)
+    active = list(range(len(parts)))
     round_d2: dict[int, float] = {}
     while len(active) >= 2:
+        total_lam = lam[active].sum(axis=0)
+        total_b = lam_z[active].sum(axis=0)
         worst, worst_d2 = None, threshold
         round_d2 = {}
         for i in active:
-            d2 = mahalanobis_sq(parts[i], [parts[j] for j in active if j != i])
+            cov_o = np.linalg.inv(total_lam - lam[i])
+            err = z[i] - cov_o @ (total_b - lam_z[i])
+            if is_heading:
+                err = np.array([wrap_angle(err[0])])
+            d2 = float(err @ np.linalg.solve(parts[i].covariance + cov_o, err))
             round_d2[i] = d2
             if d2 > worst_d2 * (1.0 + 1e-9):  # strictly worse: ties keep the earliest
                 worst, worst_d2 = i, d2
