@@ -11,7 +11,7 @@ import numpy as np
 
 from factorloc.errors import FusionError
 from factorloc.geometry import Pose2, wrap_angle
-from factorloc.types import Component, Estimate
+from factorloc.types import Component, Estimate, Query, StepReport
 
 _INDEX = {Component.X: 0, Component.Y: 1, Component.THETA: 2}
 
@@ -37,6 +37,30 @@ class FusionStrategy(Protocol):
 
     def fuse(self, estimates: Sequence[Estimate]) -> Fused:
         """The maximum-likelihood pose and its world-frame covariance."""
+        ...
+
+
+@runtime_checkable
+class SequentialStrategy(Protocol):
+    """A strategy with memory across consecutive queries of one run.
+
+    Trajectory smoothers, EKFs, Monte Carlo and Markov localization keep a
+    belief from one query to the next and move it with the odometry between
+    them (``query.odometry``: consecutive ``T_world_robot`` give the relative
+    motion). At each query they receive the step reports of the hierarchy
+    (every estimate with its reliability verdict and gate status) and return
+    their current pose belief. The evaluation runs them in scenario order
+    after :meth:`reset`.
+    """
+
+    name: str
+
+    def reset(self) -> None:
+        """Forget everything (start of a run)."""
+        ...
+
+    def update(self, query: Query, reports: Sequence[StepReport]) -> Fused:
+        """Take one query's evidence, return the current pose belief (world frame)."""
         ...
 
 
