@@ -34,6 +34,7 @@ whole panorama is searched. The world-frame heading is
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass
@@ -145,7 +146,7 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
 class _Curve:
     """One pyramid level's combined correlation curve over headings ``θ(x) = θ_s − (x − x_c)·β``."""
 
-    m: int
+    m: float
     x: np.ndarray  # integer shifts of the first view
     c: np.ndarray  # combined score per shift
     theta_s: float
@@ -205,27 +206,28 @@ def _unreliable(prepared: PreparedCorrelation, theta: float, reason: str, **diag
     return Estimate.heading(STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag)
 
 
-def _template(strip: Strip, m: int, prepared: PreparedCorrelation, config: CorrelationConfig) -> tuple[np.ndarray, float] | None:
-    """The view's template at level m and its width scale (None when it cannot be used there)."""
+def _template(strip: Strip, q: float) -> tuple[np.ndarray, float] | None:
+    """The view's template resized by ``q`` and its actual width scale (None when too small)."""
     t = strip.gray
-    if m > 0:
-        q = config.pyramid_ratio**m
+    if q != 1.0:
         w, h = int(round(t.shape[1] * q)), int(round(t.shape[0] * q))
         if w < 8 or h < 8:
             return None
-        t = cv2.resize(t, (w, h), interpolation=cv2.INTER_AREA)
+        t = cv2.resize(t, (w, h), interpolation=cv2.INTER_AREA if q < 1.0 else cv2.INTER_LINEAR)
     return t, t.shape[1] / strip.width_px
 
 
 def _level_curve(
     prepared: PreparedCorrelation,
     strips: list[Strip],
-    m: int,
+    m: float,
+    k: int,
+    q: float,
     seed: tuple[float, float] | None,
     config: CorrelationConfig,
 ) -> _Curve | None:
+    """Correlate every view, resized by ``q``, with reference level ``k`` (hypothesised scale label ``m``)."""
     grid = prepared.grid
-    k = max(0, -m)
     ref = prepared.levels[k]
     sx, sy = prepared.scales[k]
     h_ref, w_ref = ref.shape
@@ -234,9 +236,9 @@ def _level_curve(
     total = 0
     first = None
     for strip in strips:
-        if strip.full_circle and m != 0:
+        if strip.full_circle and (k != 0 or q != 1.0):
             continue  # a 360° view has no single scale: only level 0
-        tpl = _template(strip, m, prepared, config)
+        tpl = _template(strip, q)
         if tpl is None:
             continue
         t, sq = tpl
@@ -330,7 +332,8 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     if not strips:
         return _unreliable(prepared, theta_fallback, "no usable query view: " + "; ".join(dropped), **base)
     n = config.pyramid_steps
-    curves = [cv for m in range(-n, n + 1) if (cv := _level_curve(prepared, strips, m, seed, config)) is not None]
+    levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
+    curves = [cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config)) is not None]
     if not curves:
         return _unreliable(prepared, theta_fallback, "no view fits the reference pyramid", **base)
     searched = sum(cv.positions for cv in curves)
@@ -359,6 +362,20 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         dm, _ = parabolic_peak(values[best.m - 1], values[best.m], values[best.m + 1])
         m_ref += dm
     scale = config.pyramid_ratio ** (-m_ref)
+    if not at_edge and abs(m_ref) > 0.05:
+        # refinement pass at the refined scale: the views resized by 1/scale against the full reference
+        fine = _level_curve(prepared, strips, m_ref, 0, 1.0 / scale, (float(wrap_angle(theta)), 3.0 * best.beta), config)
+        if fine is not None and fine.c.size >= 3:
+            kf = int(np.argmax(fine.c))
+            if 0 < kf < fine.c.size - 1:
+                df, kappa_f = parabolic_peak(float(fine.c[kf - 1]), float(fine.c[kf]), float(fine.c[kf + 1]))
+                if kappa_f > 0.0:
+                    theta = float(fine.theta(fine.x[kf] + df))
+                    peak, kappa = max(peak, float(fine.c[kf])), kappa_f
+                    pixel = max(fine.pixel_rad, best.pixel_rad)
+                    best = dataclasses.replace(best, beta=fine.beta, pixel_rad=pixel)
+                    searched += fine.positions
+                    base["searched_positions"] = int(searched)
     if kappa > 0.0:
         sigma_px = config.sigma_gain * math.sqrt(max(1.0 - peak, 1e-3) / kappa)
         sigma = max(sigma_px * best.beta, best.pixel_rad)

@@ -35,6 +35,7 @@ from factorloc.types import CameraImage, Panorama
 
 __all__ = [
     "load_equirectangular",
+    "synthetic_equirectangular",
     "reference_panorama",
     "camera_view",
     "panorama_view",
@@ -61,6 +62,40 @@ def load_equirectangular(path: str | Path) -> np.ndarray:
     if abs(w - 2 * h) > 1:
         raise InputError(f"equirectangular photo {p} must be 2:1 (W = 2H), got {w}×{h}")
     return image
+
+
+def synthetic_equirectangular(
+    height_px: int = 256,
+    *,
+    rng: np.random.Generator | None = None,
+    period: int = 1,
+) -> np.ndarray:
+    """A procedural equirectangular "photo" (H×2H×3 BGR uint8) of random coloured blobs and bars.
+
+    Multi-scale smoothed noise plus random rectangles, seamless across the
+    ±180° edge. With ``period = p > 1`` the pattern repeats ``p`` times
+    around the circle (an ambiguous scene for heading estimators).
+    """
+    h = int(positive_float("height_px", height_px))
+    p = int(positive_float("period", period))
+    r = rng or np.random.default_rng()
+    w = 2 * h
+    if w % p:
+        raise InputError(f"period must divide the width {w}, got {p}")
+    wp = w // p
+    img = np.zeros((h, wp, 3), np.float32)
+    for scale in (4, 16, 48):
+        noise = r.normal(0.0, 1.0, (h, wp, 3)).astype(np.float32)
+        noise = cv2.copyMakeBorder(noise, 0, 0, wp, wp, cv2.BORDER_WRAP)
+        noise = cv2.GaussianBlur(noise, (0, 0), scale / 4.0)[:, wp:2 * wp]
+        img += noise / (noise.std() + 1e-6) * 40.0
+    for _ in range(12 * max(1, 4 // p)):
+        x0, y0 = int(r.integers(0, wp)), int(r.integers(0, h))
+        bw, bh = int(r.integers(4, max(5, wp // 8))), int(r.integers(4, h // 3))
+        cols = np.mod(np.arange(x0, x0 + bw), wp)
+        img[y0 : y0 + bh, cols] += r.uniform(-90.0, 90.0, 3).astype(np.float32)
+    img = np.tile(img, (1, p, 1)) + 128.0
+    return np.clip(img, 0, 255).astype(np.uint8)
 
 
 def _check_equirect(equirect_bgr: np.ndarray) -> np.ndarray:
