@@ -1,1 +1,79 @@
-"""A simulated indoor world: floor plans, textured walls, rendered panoramas, camera images and depth clouds."""
+"""A simulated indoor world: floor plans, textured walls, rendered panoramas, camera images and depth clouds.
+
+Usage
+-----
+>>> import math, numpy as np
+>>> from factorloc import Pose2
+>>> from factorloc.sim import apartment, render_panorama, render_camera, render_cloud, render_cloud_360
+>>> from factorloc.sim import PinholeCamera, DepthCamera
+>>> world = apartment()                      # ~10 × 8 m, 6 rooms, a corridor, doors; x ∈ [0, 10], y ∈ [0, 8]
+>>> T = Pose2(3.0, 2.2, 0.3)                 # T_world_robot (living room)
+>>> pano = render_panorama(world, T, height_m=1.0, width_px=2048, fov_v_rad=math.radians(60))
+>>> pano.image_bgr.shape                     # factorloc.Panorama, azimuth(u) = π − 2π·u/W, centre column forward
+(256, 2048, 3)
+>>> img = render_camera(world, T, PinholeCamera(yaw_in_robot_rad=0.5))   # factorloc.CameraImage 640×480, 57°
+>>> cloud = render_cloud(world, T, DepthCamera(), np.random.default_rng(0))  # factorloc.PointCloud, robot frame
+>>> ref_cloud = render_cloud_360(world, T, DepthCamera(stride_px=4), np.random.default_rng(1))
+
+Conventions: poses are ``T_world_robot`` (:class:`factorloc.Pose2`, metres and
+radians, x forward, y left). Panoramas follow :class:`factorloc.Panorama`
+exactly (cylindrical rows, horizon at row H/2). Camera images follow
+:class:`factorloc.CameraImage` (``azimuth_of_column``; square pixels; optical
+axis horizontal; ``yaw_in_robot_rad`` pans the camera). Clouds are N×3 in the
+robot frame, z measured from the floor; ``rng=None`` renders noise-free.
+Every sensor sits on the robot's vertical axis at its ``height_m``.
+A world is a :class:`World` (load your own with :func:`load_world`, YAML/JSON).
+"""
+
+from factorloc.sim.render import (
+    DepthCamera,
+    Hits,
+    PinholeCamera,
+    cast_rays,
+    panorama_rays,
+    render_camera,
+    render_cloud,
+    render_cloud_360,
+    render_panorama,
+    render_scan,
+)
+from factorloc.sim.textures import BASE_TEXTURES, DECAL_IMAGES
+from factorloc.sim.world import (
+    Decal,
+    Face,
+    Material,
+    Obstacle,
+    Wall,
+    World,
+    apartment,
+    builtin_worlds,
+    load_world,
+    save_world,
+    world_by_name,
+)
+
+__all__ = [
+    "BASE_TEXTURES",
+    "DECAL_IMAGES",
+    "Decal",
+    "DepthCamera",
+    "Face",
+    "Hits",
+    "Material",
+    "Obstacle",
+    "PinholeCamera",
+    "Wall",
+    "World",
+    "apartment",
+    "builtin_worlds",
+    "cast_rays",
+    "load_world",
+    "panorama_rays",
+    "render_camera",
+    "render_cloud",
+    "render_cloud_360",
+    "render_panorama",
+    "render_scan",
+    "save_world",
+    "world_by_name",
+]

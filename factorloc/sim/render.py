@@ -1,0 +1,535 @@
+"""Renderers: 360° panoramas, pinhole camera images, depth point clouds and 2D scans of a :class:`World`.
+
+All renderers share one vectorised ray caster. A sensor's pixel grid is
+*column-separable*: every image column is a vertical plane through the
+sensor's (vertical) axis, so a column's horizontal ray is intersected with all
+S plan segments at once (a W×S array), the K nearest hits are kept, and each
+pixel's elevation decides which of them it sees:
+
+* a hit at horizontal distance ``d`` is seen by the pixel of elevation tangent
+  ``t`` when the ray's height there, ``z = z_cam + d·t``, lies on the face
+  (``0 ≤ z ≤ height``); nearer hits win (occlusion);
+* a ray that passes above a low obstacle's front face and meets its back face
+  from inside has hit the obstacle's *top* at ``d = (z_cam − h)/(−t)``;
+* a ray that meets no face hits the floor at ``d = z_cam/(−t)`` or the ceiling
+  at ``d = (H − z_cam)/t``.
+
+Textures are sampled bilinearly from the world's mip-mapped atlas
+(:func:`factorloc.sim.textures.atlas_of`) with :func:`cv2.remap`, the level
+chosen per pixel from the texel footprint. Perspective, parallax and
+occlusion are therefore exact; there is no lighting model beyond a fixed
+shade per face orientation.
+
+Sensor heights are metres above the floor; sensors sit on the robot's
+vertical axis. Camera pitch is always 0 (optical axes horizontal).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from factorloc._validate import finite_float, nonnegative_float, positive_float
+from factorloc.errors import InputError
+from factorloc.geometry import Pose2, wrap_angle
+from factorloc.sim.textures import atlas_of
+from factorloc.sim.world import World
+from factorloc.types import CameraImage, Panorama, PointCloud, Scan
+
+#: Number of nearest segment hits kept per column (enough for a few low obstacles in front of a wall).
+_MAX_LAYERS = 6
+_FLOOR, _CEILING, _FACE, _TOP = 0, 1, 2, 3
+
+
+# --------------------------------------------------------------------------
+# Sensors
+# --------------------------------------------------------------------------
+def _positive_int(name: str, value: object, minimum: int = 1) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < minimum:
+        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A robot's colour camera: square pixels, optical axis horizontal.
+
+    Defaults: 640×480 px, 57° horizontal FOV (44.3° vertical, as the robot of
+    WO 2015/158682), looking forward from 1.0 m above the floor. ``yaw_in_robot_rad``
+    turns it in the robot frame (CCW positive, a pan head).
+    """
+
+    width_px: int = 640
+    height_px: int = 480
+    hfov_rad: float = math.radians(57.0)
+    yaw_in_robot_rad: float = 0.0
+    height_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "width_px", _positive_int("PinholeCamera.width_px", self.width_px, 8))
+        object.__setattr__(self, "height_px", _positive_int("PinholeCamera.height_px", self.height_px, 8))
+        fov = positive_float("PinholeCamera.hfov_rad", self.hfov_rad)
+        if fov >= math.pi:
+            raise InputError(f"PinholeCamera.hfov_rad must be < π, got {fov}")
+        object.__setattr__(self, "hfov_rad", fov)
+        object.__setattr__(
+            self, "yaw_in_robot_rad", wrap_angle(finite_float("PinholeCamera.yaw_in_robot_rad", self.yaw_in_robot_rad))
+        )
+        object.__setattr__(self, "height_m", positive_float("PinholeCamera.height_m", self.height_m))
+
+    @property
+    def focal_px(self) -> float:
+        """``(W/2) / tan(hfov/2)``, as :attr:`factorloc.CameraImage.focal_px`."""
+        return 0.5 * self.width_px / math.tan(0.5 * self.hfov_rad)
+
+    @property
+    def vfov_rad(self) -> float:
+        return 2.0 * math.atan(0.5 * self.height_px / self.focal_px)
+
+
+@dataclass(frozen=True)
+class DepthCamera:
+    """A structured-light depth sensor (Kinect/Xtion-like), optical axis horizontal.
+
+    Defaults: 320×240 px over 58° × 45°, valid depths 0.4–4.5 m, 1.0 m above
+    the floor. Depth noise (along the ray, Gaussian) has the standard deviation
+    ``σ(d) = noise_sigma0_m + noise_quadratic_m_per_m2 · (d − noise_ref_m)²`` for depth ``d``
+    (1.2 mm + 1.9 mm·(d − 0.4 m)², Nguyen, Izadi & Lovell 2012, Kinect axial noise).
+    ``stride_px`` keeps every n-th pixel in both directions (decimation).
+    Returns from faces marked ``glass`` are dropped.
+    """
+
+    width_px: int = 320
+    height_px: int = 240
+    hfov_rad: float = math.radians(58.0)
+    vfov_rad: float = math.radians(45.0)
+    min_range_m: float = 0.4
+    max_range_m: float = 4.5
+    yaw_in_robot_rad: float = 0.0
+    height_m: float = 1.0
+    noise_sigma0_m: float = 0.0012
+    noise_quadratic_m_per_m2: float = 0.0019
+    noise_ref_m: float = 0.4
+    stride_px: int = 1
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "width_px", _positive_int("DepthCamera.width_px", self.width_px, 2))
+        object.__setattr__(self, "height_px", _positive_int("DepthCamera.height_px", self.height_px, 2))
+        for name in ("hfov_rad", "vfov_rad"):
+            fov = positive_float(f"DepthCamera.{name}", getattr(self, name))
+            if fov >= math.pi:
+                raise InputError(f"DepthCamera.{name} must be < π, got {fov}")
+            object.__setattr__(self, name, fov)
+        lo = nonnegative_float("DepthCamera.min_range_m", self.min_range_m)
+        hi = positive_float("DepthCamera.max_range_m", self.max_range_m)
+        if hi <= lo:
+            raise InputError(f"DepthCamera.max_range_m ({hi}) must exceed min_range_m ({lo})")
+        object.__setattr__(self, "min_range_m", lo)
+        object.__setattr__(self, "max_range_m", hi)
+        object.__setattr__(
+            self, "yaw_in_robot_rad", wrap_angle(finite_float("DepthCamera.yaw_in_robot_rad", self.yaw_in_robot_rad))
+        )
+        object.__setattr__(self, "height_m", positive_float("DepthCamera.height_m", self.height_m))
+        for name in ("noise_sigma0_m", "noise_quadratic_m_per_m2", "noise_ref_m"):
+            object.__setattr__(self, name, nonnegative_float(f"DepthCamera.{name}", getattr(self, name)))
+        object.__setattr__(self, "stride_px", _positive_int("DepthCamera.stride_px", self.stride_px))
+
+    def noise_sigma_m(self, depth_m: np.ndarray | float) -> np.ndarray | float:
+        """σ of the depth noise (m) at depth ``depth_m``."""
+        return self.noise_sigma0_m + self.noise_quadratic_m_per_m2 * (np.asarray(depth_m) - self.noise_ref_m) ** 2
+
+
+# --------------------------------------------------------------------------
+# The ray caster
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Hits:
+    """What each pixel of a column-separable sensor sees (all arrays H×W).
+
+    ``kind``: 0 floor, 1 ceiling, 2 wall/obstacle face, 3 obstacle top.
+    ``distance_m``: horizontal distance from the sensor axis to the hit (capped at 1 km).
+    ``face``: index into ``world.segments.faces`` (−1 unless kind 2).
+    ``x_m``, ``y_m``, ``z_m``: world coordinates of the hit (float64).
+    """
+
+    kind: np.ndarray
+    distance_m: np.ndarray
+    face: np.ndarray
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_m: np.ndarray
+    map_x: np.ndarray  # float32 coordinates into atlas.packed, for cv2.remap
+    map_y: np.ndarray
+
+
+def cast_rays(
+    world: World,
+    T_world_sensor: Pose2,
+    z_m: float,
+    azimuth_rad: np.ndarray,
+    row_tan: np.ndarray,
+    col_scale: np.ndarray,
+    pixel_angle_rad: np.ndarray,
+    *,
+    texture: bool = True,
+) -> Hits:
+    """Cast the rays of a column-separable sensor.
+
+    Parameters
+    ----------
+    world
+        The world.
+    T_world_sensor
+        Pose of the sensor axis in the world (its heading is azimuth 0).
+    z_m
+        Height of the optical centre above the floor (m), in (0, wall height).
+    azimuth_rad
+        W azimuths of the columns in the sensor frame (rad, CCW).
+    row_tan, col_scale
+        The elevation tangent of pixel (v, u) is ``row_tan[v] * col_scale[u]``.
+    pixel_angle_rad
+        W angular sizes of a pixel (rad), for the texture level of detail.
+    texture
+        Compute the atlas coordinates (``map_x``, ``map_y``); False for depth-only sensors.
+    """
+    seg = world.segments
+    ox, oy = T_world_sensor.x, T_world_sensor.y
+    if bool(world.inside_obstacle(np.array([[ox, oy]]))[0]):
+        raise InputError(f"sensor pose {T_world_sensor} is inside an obstacle of world '{world.name}'")
+    if not 0.0 < z_m < world.wall_height_m:
+        raise InputError(
+            f"sensor height {z_m} m must be inside (0, {world.wall_height_m}) m, the wall height of world '{world.name}'"
+        )
+    wall_h = world.wall_height_m
+    az = T_world_sensor.theta + np.asarray(azimuth_rad, np.float64)
+    dx, dy = np.cos(az), np.sin(az)  # W
+    row_tan = np.asarray(row_tan, np.float64)
+    col_scale = np.asarray(col_scale, np.float64)
+    H, W = row_tan.shape[0], az.shape[0]
+
+    # --- column rays against all segments (W×S) -------------------------------
+    e = seg.p1 - seg.p0
+    wx, wy = seg.p0[:, 0] - ox, seg.p0[:, 1] - oy
+    denom = dx[:, None] * e[None, :, 1] - dy[:, None] * e[None, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (wx * e[:, 1] - wy * e[:, 0])[None, :] / denom
+        s = (wx[None, :] * dy[:, None] - wy[None, :] * dx[:, None]) / denom
+    valid = (np.abs(denom) > 1e-12) & (t > 1e-9) & (s >= 0.0) & (s <= 1.0)
+    t = np.where(valid, t, np.inf)
+    on_left = (e[:, 0] * (oy - seg.p0[:, 1]) - e[:, 1] * (ox - seg.p0[:, 0])) > 0.0  # S: which side the sensor is on
+    seen_face = np.where(on_left, seg.face_left, seg.face_right)  # S, −1 = inside of an obstacle
+
+    K = min(_MAX_LAYERS, seg.count)
+    if K < seg.count:
+        idx = np.argpartition(t, K - 1, axis=1)[:, :K]
+    else:
+        idx = np.broadcast_to(np.arange(seg.count), (W, seg.count)).copy()
+    tk = np.take_along_axis(t, idx, axis=1)
+    order = np.argsort(tk, axis=1, kind="stable")
+    idx = np.take_along_axis(idx, order, axis=1)
+    tk = np.take_along_axis(tk, order, axis=1)
+    full = np.isfinite(tk) & (seg.height_m[idx] >= wall_h - 1e-9)
+    first_full = np.where(full.any(axis=1), np.argmax(full, axis=1), K - 1)
+    Kp = int(first_full.max()) + 1
+
+    # per (layer, column) tables; row Kp is the pseudo-layer "no face: floor or ceiling"
+    idx = idx[:, :Kp].T  # Kp×W
+    d_tab = tk[:, :Kp].T
+    hit_ok = np.isfinite(d_tab)
+    h_tab = seg.height_m[idx]
+    f_tab = seen_face[idx]  # −1: top of an obstacle
+
+    # --- per pixel: nearest layer whose face spans the pixel's elevation --------
+    tan_e = (row_tan[:, None] * col_scale[None, :]).astype(np.float32)  # H×W
+    layer = np.full((H, W), Kp, np.int8)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lo_tab = np.where(hit_ok, -z_m / d_tab, np.inf).astype(np.float32)
+        hi_tab = np.where(hit_ok, (h_tab - z_m) / d_tab, -np.inf).astype(np.float32)
+    for k in range(Kp - 1, -1, -1):  # painter's algorithm: far to near
+        cover = tan_e >= lo_tab[k]
+        cover &= tan_e <= hi_tab[k]
+        np.putmask(layer, cover, k)
+
+    lin = layer.astype(np.int32) * W + np.arange(W, dtype=np.int32)[None, :]
+    pseudo = np.zeros((1, W))
+    is_face = np.take(np.vstack([f_tab >= 0, np.zeros((1, W), bool)]).ravel(), lin)
+    # planar pixels (floor, ceiling, obstacle top): the plane's height
+    plane_tab = np.vstack([np.where(f_tab >= 0, np.nan, h_tab), pseudo]).ravel().astype(np.float32)
+    plane_h = np.take(plane_tab, lin)
+    no_face = layer == Kp
+    plane_h[no_face] = np.where(tan_e[no_face] < 0.0, 0.0, wall_h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dist = (np.float32(z_m) - plane_h) / -tan_e
+    dface = np.take(np.vstack([np.where(hit_ok, d_tab, 0.0), pseudo]).ravel().astype(np.float32), lin)
+    dist = np.where(is_face, dface, dist)
+    dist = np.where(np.isfinite(dist) & (dist > 0.0), np.minimum(dist, 1e3), 1e3).astype(np.float32)
+
+    kind = np.full((H, W), _TOP, np.int8)
+    kind[is_face] = _FACE
+    kind[no_face & (tan_e < 0.0)] = _FLOOR
+    kind[no_face & (tan_e >= 0.0)] = _CEILING
+    face = np.take(np.vstack([f_tab, np.full((1, W), -1)]).ravel(), lin)
+
+    dist64 = dist.astype(np.float64)
+    x = ox + dist64 * dx[None, :]
+    y = oy + dist64 * dy[None, :]
+    z = np.where(is_face, np.float32(z_m) + dist * tan_e, plane_h).astype(np.float64)
+    np.clip(z, 0.0, wall_h, out=z)
+    if not texture:
+        empty = np.zeros((0, 0), np.float32)
+        return Hits(kind, dist64, face, x, y, z, empty, empty)
+
+    # --- texture coordinates ----------------------------------------------------
+    atlas = atlas_of(world)
+    ppm = atlas.ppm
+    fsafe = np.maximum(f_tab, 0)
+    s_tab = np.take_along_axis(s, idx.T, axis=1).T
+    L = seg.face_length_m[fsafe]
+    u_m = np.where(on_left[idx], (1.0 - s_tab) * L, s_tab * L)
+    ax_tab = atlas.face_x0[fsafe] + u_m * ppm
+    ay_tab = atlas.face_y0[fsafe] + (seg.face_height_m[fsafe] - z_m) * ppm  # minus ppm·d·tan_e per pixel
+    cos_h = np.abs(e[idx, 0] * dy[None, :] - e[idx, 1] * dx[None, :]) / np.hypot(e[idx, 0], e[idx, 1])
+    fp_tab = ppm * pixel_angle_rad[None, :] * np.where(hit_ok, d_tab, 0.0) / np.clip(cos_h, 0.35, 1.0)
+    ax_f = np.take(np.vstack([ax_tab, pseudo]).ravel().astype(np.float32), lin)
+    ay_f = np.take(np.vstack([ay_tab, pseudo]).ravel().astype(np.float32), lin) - np.float32(ppm) * dist * tan_e
+    # tiles: 0 floor, 1 ceiling, 2 + k top of obstacle k
+    tile_tab = np.vstack([2 + seg.obstacle[idx], np.zeros((1, W), np.int64)]).ravel().astype(np.int8)
+    tile = np.take(tile_tab, lin)
+    tile[no_face & (tan_e >= 0.0)] = 1
+    tppm = np.take(atlas.tile_ppm.astype(np.float32), tile)
+    tpx = np.take(atlas.tile_px.astype(np.float32), tile)
+    ax_t = np.take(atlas.tile_x0.astype(np.float32), tile) + np.mod((x * tppm).astype(np.float32), tpx)
+    ay_t = np.take(atlas.tile_y0.astype(np.float32), tile) + np.mod((-y * tppm).astype(np.float32), tpx)
+    ax = np.where(is_face, ax_f, ax_t)
+    ay = np.where(is_face, ay_f, ay_t)
+
+    # texel footprint (level-0 texels per pixel) → mip level
+    t2 = 1.0 + tan_e * tan_e
+    fp_plane = np.float32(ppm) * pixel_angle_rad.astype(np.float32)[None, :] * dist / np.maximum(np.abs(tan_e), 0.35)
+    fp = np.where(is_face, np.take(np.vstack([fp_tab, pseudo]).ravel().astype(np.float32), lin), fp_plane) * t2
+    level = (fp >= 2.0).astype(np.int8)
+    for lv in range(2, len(atlas.levels)):
+        level += fp >= 2.0**lv
+    scale = np.take(np.float32(0.5) ** np.arange(len(atlas.levels), dtype=np.float32), level)
+    map_x = np.take(atlas.level_x0, level) + ax * scale - 0.5
+    map_y = np.take(atlas.level_y0, level) + ay * scale - 0.5
+    return Hits(kind, dist64, face, x, y, z, map_x, map_y)
+
+
+def _shade(world: World, hits: Hits) -> np.ndarray:
+    """Sample the packed atlas bilinearly: H×W×3 BGR uint8."""
+    return cv2.remap(atlas_of(world).packed, hits.map_x, hits.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+
+# --------------------------------------------------------------------------
+# Public renderers
+# --------------------------------------------------------------------------
+def panorama_rays(
+    width_px: int, height_px: int, fov_v_rad: float, azimuth_col0_rad: float = math.pi
+) -> tuple[np.ndarray, np.ndarray]:
+    """Column azimuths (W,) and row elevation tangents (H,) of the :class:`~factorloc.Panorama` convention.
+
+    ``azimuth(u) = azimuth_col0_rad − 2π·u/W``; ``tan(elevation(v)) = (H/2 − v)/f``,
+    ``f = (H/2)/tan(fov_v/2)``.
+    """
+    u = np.arange(width_px, dtype=np.float64)
+    v = np.arange(height_px, dtype=np.float64)
+    f = 0.5 * height_px / math.tan(0.5 * fov_v_rad)
+    return azimuth_col0_rad - 2.0 * math.pi * u / width_px, (0.5 * height_px - v) / f
+
+
+def render_panorama(
+    world: World,
+    T_world_robot: Pose2,
+    height_m: float = 1.0,
+    width_px: int = 2048,
+    fov_v_rad: float = math.radians(60.0),
+    height_px: int | None = None,
+) -> Panorama:
+    """Render the 360° cylindrical panorama seen from ``height_m`` above the robot's pose.
+
+    Follows :class:`factorloc.Panorama` exactly: column ``u`` looks at robot-frame
+    azimuth ``π − 2π·u/W`` (the centre column ``W/2`` looks forward, azimuth
+    decreases to the right), row ``v`` at elevation ``atan((H/2 − v)/f)`` with
+    ``f = (H/2)/tan(fov_v_rad/2)``. ``height_px`` defaults to ``width_px // 8``
+    (2048 × 256). Rotating the robot by Δθ shifts the image by Δθ·W/2π columns
+    to the right.
+    """
+    if not isinstance(T_world_robot, Pose2):
+        raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
+    W = _positive_int("width_px", width_px, 8)
+    H = W // 8 if height_px is None else _positive_int("height_px", height_px, 8)
+    fov = positive_float("fov_v_rad", fov_v_rad)
+    if fov >= math.pi:
+        raise InputError(f"fov_v_rad must be < π for a cylindrical panorama, got {fov}")
+    az, row_tan = panorama_rays(W, H, fov)
+    f = 0.5 * H / math.tan(0.5 * fov)
+    ang = np.full(W, max(2.0 * math.pi / W, 1.0 / f))
+    hits = cast_rays(world, T_world_robot, positive_float("height_m", height_m), az, row_tan, np.ones(W), ang)
+    return Panorama(_shade(world, hits), fov_v_rad=fov, azimuth_col0_rad=math.pi)
+
+
+def _camera_rays(
+    width: int, height: int, fx: float, fy: float, stride: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    u = np.arange(0, width, stride, dtype=np.float64)
+    v = np.arange(0, height, stride, dtype=np.float64)
+    a = ((width - 1) / 2.0 - u) / fx  # left component of the ray (forward = 1)
+    b = ((height - 1) / 2.0 - v) / fy  # up component
+    return u, v, a, b
+
+
+def render_camera(world: World, T_world_robot: Pose2, camera: PinholeCamera = PinholeCamera()) -> CameraImage:
+    """Render a pinhole image (BGR uint8, ``camera.height_px × camera.width_px``).
+
+    Column ``u`` looks at robot-frame azimuth ``yaw + atan((cx − u)/f)`` with
+    ``cx = (W−1)/2``, ``f = (W/2)/tan(hfov/2)`` — :meth:`factorloc.CameraImage.azimuth_of_column`;
+    row ``v`` at elevation tangent ``(cy − v)/f / sqrt(1 + ((cx − u)/f)²)``.
+    """
+    if not isinstance(T_world_robot, Pose2):
+        raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
+    if not isinstance(camera, PinholeCamera):
+        raise InputError(f"camera must be a PinholeCamera, got {type(camera).__name__}")
+    f = camera.focal_px
+    _, _, a, b = _camera_rays(camera.width_px, camera.height_px, f, f)
+    col_scale = 1.0 / np.sqrt(1.0 + a * a)
+    T_sensor = T_world_robot * Pose2(0.0, 0.0, camera.yaw_in_robot_rad)
+    hits = cast_rays(world, T_sensor, camera.height_m, np.arctan(a), b, col_scale, col_scale / f)
+    return CameraImage(_shade(world, hits), hfov_rad=camera.hfov_rad, yaw_in_robot_rad=camera.yaw_in_robot_rad)
+
+
+def _cloud_world(
+    world: World, T_world_robot: Pose2, cam: DepthCamera, rng: np.random.Generator | None
+) -> tuple[np.ndarray, Hits, np.ndarray]:
+    fx = 0.5 * cam.width_px / math.tan(0.5 * cam.hfov_rad)
+    fy = 0.5 * cam.height_px / math.tan(0.5 * cam.vfov_rad)
+    _, _, a, b = _camera_rays(cam.width_px, cam.height_px, fx, fy, cam.stride_px)
+    col_scale = 1.0 / np.sqrt(1.0 + a * a)
+    T_sensor = T_world_robot * Pose2(0.0, 0.0, cam.yaw_in_robot_rad)
+    hits = cast_rays(world, T_sensor, cam.height_m, np.arctan(a), b, col_scale, col_scale / fx * cam.stride_px, texture=False)
+    depth = hits.distance_m * col_scale[None, :]  # along the optical axis
+    keep = (depth >= cam.min_range_m) & (depth <= cam.max_range_m)
+    if np.any(hits.kind == _FACE):
+        glass = np.zeros_like(keep)
+        fm = hits.kind == _FACE
+        glass[fm] = world.segments.face_glass[hits.face[fm]]
+        keep &= ~glass
+    factor = np.ones_like(depth)
+    if rng is not None:
+        sigma = cam.noise_sigma_m(depth)
+        factor = 1.0 + rng.standard_normal(depth.shape) * sigma / np.maximum(depth, 1e-9)
+    pts = np.stack(
+        [
+            T_sensor.x + (hits.x_m - T_sensor.x) * factor,
+            T_sensor.y + (hits.y_m - T_sensor.y) * factor,
+            cam.height_m + (hits.z_m - cam.height_m) * factor,
+        ],
+        axis=-1,
+    )
+    return pts[keep], hits, keep
+
+
+def _to_robot(points_world: np.ndarray, T_world_robot: Pose2) -> np.ndarray:
+    xy = T_world_robot.inverse().transform_points(points_world[:, :2])
+    out = np.column_stack([xy, points_world[:, 2]])
+    return out.astype(np.float32).astype(np.float64)  # float32-exact: stores losslessly as float32
+
+
+def render_cloud(
+    world: World,
+    T_world_robot: Pose2,
+    depth_camera: DepthCamera = DepthCamera(),
+    rng: np.random.Generator | None = None,
+) -> PointCloud:
+    """Render the point cloud a depth camera returns (robot frame, z up from the floor).
+
+    Points are N×3 metres in the robot frame (x forward, y left, z from the
+    floor), row-major over the (strided) pixel grid, keeping depths in
+    ``[min_range_m, max_range_m]`` and dropping glass. With ``rng`` each depth
+    gets Gaussian noise of σ = ``depth_camera.noise_sigma_m(depth)`` along its ray;
+    ``rng=None`` renders noise-free. Values are rounded to float32 precision
+    (so that a float32 file stores them exactly).
+    """
+    if not isinstance(T_world_robot, Pose2):
+        raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
+    if not isinstance(depth_camera, DepthCamera):
+        raise InputError(f"depth_camera must be a DepthCamera, got {type(depth_camera).__name__}")
+    pts, _, _ = _cloud_world(world, T_world_robot, depth_camera, rng)
+    if len(pts) == 0:
+        raise InputError(
+            f"the depth camera at {T_world_robot} sees nothing within {depth_camera.min_range_m}–{depth_camera.max_range_m} m"
+        )
+    return PointCloud(_to_robot(pts, T_world_robot))
+
+
+def render_cloud_360(
+    world: World,
+    T_world_robot: Pose2,
+    depth_camera: DepthCamera = DepthCamera(),
+    rng: np.random.Generator | None = None,
+    n_views: int | None = None,
+) -> PointCloud:
+    """A 360° cloud: the robot turns its head through ``n_views`` equally spaced yaws and merges the views.
+
+    ``n_views`` defaults to ``ceil(2π / hfov)`` (7 for 58°), so neighbouring views
+    overlap slightly. The camera's own ``yaw_in_robot_rad`` is the first yaw.
+    Points are in the robot frame as in :func:`render_cloud`.
+    """
+    if not isinstance(depth_camera, DepthCamera):
+        raise InputError(f"depth_camera must be a DepthCamera, got {type(depth_camera).__name__}")
+    n = math.ceil(2.0 * math.pi / depth_camera.hfov_rad) if n_views is None else _positive_int("n_views", n_views)
+    parts = []
+    for i in range(n):
+        cam = _replace(depth_camera, yaw_in_robot_rad=depth_camera.yaw_in_robot_rad + 2.0 * math.pi * i / n)
+        pts, _, _ = _cloud_world(world, T_world_robot, cam, rng)
+        parts.append(pts)
+    pts = np.vstack(parts)
+    if len(pts) == 0:
+        raise InputError(
+            f"the depth camera at {T_world_robot} sees nothing within {depth_camera.min_range_m}–{depth_camera.max_range_m} m"
+        )
+    return PointCloud(_to_robot(pts, T_world_robot))
+
+
+def render_scan(
+    world: World,
+    T_world_robot: Pose2,
+    n_beams: int = 360,
+    height_m: float = 0.3,
+    max_range_m: float = 10.0,
+    sigma_m: float = 0.01,
+    rng: np.random.Generator | None = None,
+) -> Scan:
+    """A planar laser scan at ``height_m`` above the floor: ``n_beams`` beams over 360°, beam i at azimuth 2π·i/n.
+
+    Returns hits closer than ``max_range_m`` (N×2, robot frame), with Gaussian
+    range noise ``sigma_m`` when ``rng`` is given. Glass is invisible to it as to
+    the depth camera; obstacles lower than ``height_m`` are not seen.
+    """
+    if not isinstance(T_world_robot, Pose2):
+        raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
+    n = _positive_int("n_beams", n_beams, 4)
+    rmax = positive_float("max_range_m", max_range_m)
+    sig = nonnegative_float("sigma_m", sigma_m)
+    az = 2.0 * math.pi * np.arange(n) / n
+    hits = cast_rays(
+        world, T_world_robot, positive_float("height_m", height_m), az, np.zeros(1), np.ones(n), np.full(n, 2 * math.pi / n)
+    )
+    r = hits.distance_m[0].copy()
+    keep = (hits.kind[0] == _FACE) & (r < rmax)
+    keep[keep] &= ~world.segments.face_glass[hits.face[0][keep]]
+    if rng is not None and sig > 0:
+        r = r + rng.normal(0.0, sig, r.shape)
+    pts = np.column_stack([r * np.cos(az), r * np.sin(az)])[keep]
+    if len(pts) == 0:
+        raise InputError(f"the scanner at {T_world_robot} sees nothing within {rmax} m")
+    return Scan(pts.astype(np.float32).astype(np.float64))
+
+
+def _replace(cam: DepthCamera, **changes: float) -> DepthCamera:
+    import dataclasses
+
+    return dataclasses.replace(cam, **changes)
