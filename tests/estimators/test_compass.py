@@ -1,0 +1,150 @@
+"""The virtual compass (θ2) against exact heading truth: real 360° photos cut at known yaws, and synthetic scenes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from factorloc import CameraImage, Estimate, Pose2, Query, Reference
+from factorloc.errors import ConfigError, InputError
+from factorloc.estimators import compass
+from factorloc.estimators.base import Hypotheses, Step
+from factorloc.sim import photo
+
+PHOTOS = {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}
+
+
+def _err(est: Estimate, truth: float) -> float:
+    return abs(math.remainder(est.value("theta") - truth, 2 * math.pi))
+
+
+@pytest.fixture(scope="module", params=sorted(PHOTOS))
+def real(request, shared_data):
+    path = shared_data / "panoramas" / request.param
+    if not path.is_file():
+        pytest.skip(f"{path} absent")
+    eq = photo.load_equirectangular(path)
+    w, h = PHOTOS[request.param]
+    ref = Reference(panorama=photo.reference_panorama(eq, w, h))
+    return request.param, eq, ref, compass.prepare(ref)
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    eq = photo.synthetic_equirectangular(256, rng=np.random.default_rng(11))
+    ref = Reference(panorama=photo.reference_panorama(eq, 1024, 160), T_world_reference=Pose2(2.0, -1.0, 0.4))
+    return eq, ref, compass.prepare(ref)
+
+
+def _views(eq, n, rng, fault):
+    for _ in range(n):
+        heading, yaw = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.6)
+        cam = photo.camera_view(eq, heading, yaw, width_px=320, height_px=240)
+        img = cam.image_bgr
+        if fault == "lighting":
+            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
+                                    blur_sigma_px=0.7, rng=rng)
+        elif fault == "occlusion":
+            img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
+        yield heading, CameraImage(img, cam.hfov_rad, cam.yaw_in_robot_rad)
+
+
+@pytest.mark.parametrize("fault", ["clean", "lighting", "occlusion"])
+def test_heading_on_real_photos_is_accurate_and_never_confidently_wrong(real, fault) -> None:
+    name, eq, ref, prepared = real
+    rng = np.random.default_rng([len(name), ["clean", "lighting", "occlusion"].index(fault)])
+    errors, z, reliable = [], [], []
+    for heading, cam in _views(eq, 12, rng, fault):
+        est = compass.estimate(ref, Query(images=(cam,)), prepared=prepared)
+        reliable.append(est.reliable)
+        if est.reliable:
+            errors.append(_err(est, heading))
+            z.append(_err(est, heading) / est.sigma("theta"))
+    assert np.mean(reliable) >= (0.6 if fault != "occlusion" else 0.3), f"{name} {fault}: reliable rate {np.mean(reliable):.2f}"
+    assert np.median(errors) < math.radians(0.5)
+    assert max(z) < 3.0, f"{name} {fault}: a reliable estimate is off by {max(z):.1f}σ"
+
+
+def test_seeding_by_theta1_shrinks_the_candidate_set_and_keeps_the_answer(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 1.0, 0.2, width_px=320, height_px=240)
+    q = Query(images=(cam,))
+    blind = compass.estimate(ref, q, prepared=prepared)
+    theta_world = 0.4 + 1.0
+    seed = Hypotheses((Estimate.heading("odometry", theta_world + 0.02, 0.03),))
+    seeded = compass.estimate(ref, q, seed, prepared=prepared)
+    assert blind.reliable and seeded.reliable
+    assert not blind.diagnostics["seeded"] and seeded.diagnostics["seeded"]
+    assert seeded.diagnostics["window_rad"] == pytest.approx(math.radians(5.16), abs=1e-3)  # 3σ + nothing below 3°
+    assert seeded.diagnostics["candidates"] < 0.2 * blind.diagnostics["candidates"]
+    for est in (blind, seeded):  # world frame: the reference's heading is added
+        assert _err(est, theta_world) < math.radians(0.3)
+
+
+def test_a_wrong_seed_does_not_produce_a_confident_heading(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 1.0, 0.0, width_px=320, height_px=240)
+    seed = Hypotheses((Estimate.heading("odometry", 0.4 + 1.0 + math.radians(40), math.radians(1.0)),))
+    est = compass.estimate(ref, Query(images=(cam,)), seed, prepared=prepared)
+    assert not est.reliable
+
+
+def test_several_images_and_a_query_panorama_across_the_seam(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    heading = math.pi - 0.05  # the front camera straddles azimuth ±π of the reference
+    cams = tuple(photo.camera_view(eq, heading, yaw, math.radians(60), 200, 150) for yaw in (-2.1, 0.0, 2.1))
+    est = compass.estimate(ref, Query(images=cams), prepared=prepared)
+    assert est.reliable and _err(est, 0.4 + heading) < math.radians(0.3)
+    pano_q = photo.panorama_view(eq, heading, 800, 200, math.radians(70))
+    est = compass.estimate(ref, Query(panorama=pano_q), prepared=prepared)
+    assert est.reliable and _err(est, 0.4 + heading) < math.radians(0.3)
+
+
+def test_orb_detector_also_works(synthetic) -> None:
+    eq, ref, _ = synthetic
+    cfg = compass.CompassConfig(detector="orb")
+    cam = photo.camera_view(eq, -2.0, 0.3, width_px=320, height_px=240)
+    est = compass.estimate(ref, Query(images=(cam,)), config=cfg)
+    assert est.reliable and est.diagnostics["detector"] == "orb"
+    assert _err(est, 0.4 - 2.0) < math.radians(0.3)
+
+
+@pytest.mark.parametrize("value", [0, 255, 77])
+def test_black_white_or_flat_images_give_an_unreliable_estimate_with_a_reason(synthetic, value) -> None:
+    _, ref, prepared = synthetic
+    cam = CameraImage(np.full((240, 320, 3), value, np.uint8))
+    est = compass.estimate(ref, Query(images=(cam,)), prepared=prepared)
+    assert not est.reliable
+    assert "black" in est.reason or "flat" in est.reason
+    assert est.sigma("theta") == pytest.approx(math.pi)
+
+
+def test_bad_images_are_refused_by_the_types() -> None:
+    with pytest.raises(InputError, match="uint8"):
+        CameraImage(np.zeros((240, 320, 3), np.float32))
+    with pytest.raises(InputError, match="H×W×3"):
+        CameraImage(np.zeros((240, 320), np.uint8))
+    with pytest.raises(InputError, match="too small"):
+        CameraImage(np.zeros((0, 0, 3), np.uint8))
+
+
+def test_step_skips_missing_inputs_and_implements_the_protocol(synthetic) -> None:
+    eq, ref, _ = synthetic
+    step = compass.CompassStep()
+    assert isinstance(step, Step) and step.name == "compass"
+    prepared = step.prepare(ref)
+    assert step.estimate(prepared, Query(), Hypotheses()) is None
+    no_pano = Reference(scan=__import__("factorloc").Scan(np.zeros((3, 2))))
+    assert step.prepare(no_pano) is None
+    assert step.estimate(None, Query(images=(photo.camera_view(eq, 0.0, width_px=64, height_px=48),)), Hypotheses()) is None
+    with pytest.raises(InputError, match="panorama"):
+        compass.estimate(no_pano, Query())
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ConfigError, match="min_inliers"):
+        compass.CompassConfig(min_inliers=1)
+    with pytest.raises(ConfigError, match="detector"):
+        compass.CompassConfig(detector="akaze")
