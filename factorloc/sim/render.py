@@ -152,17 +152,40 @@ class Hits:
     ``kind``: 0 floor, 1 ceiling, 2 wall/obstacle face, 3 obstacle top.
     ``distance_m``: horizontal distance from the sensor axis to the hit (capped at 1 km).
     ``face``: index into ``world.segments.faces`` (−1 unless kind 2).
-    ``x_m``, ``y_m``, ``z_m``: world coordinates of the hit (float64).
+    ``x_m``, ``y_m``, ``z_m``: world coordinates of the hit (float64, computed on access).
     """
 
     kind: np.ndarray
-    distance_m: np.ndarray
+    dist: np.ndarray
     face: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    z_m: np.ndarray
-    map_x: np.ndarray  # float32 coordinates into atlas.packed, for cv2.remap
-    map_y: np.ndarray
+    origin: tuple[float, float, float]
+    dx: np.ndarray
+    dy: np.ndarray
+    tan_e: np.ndarray
+    face_sel: np.ndarray
+    plane_h: np.ndarray
+    wall_h: float
+    map_x: np.ndarray | None = None  # float32 coordinates into atlas.packed, for cv2.remap
+    map_y: np.ndarray | None = None
+
+    @property
+    def distance_m(self) -> np.ndarray:
+        return self.dist.astype(np.float64)
+
+    @property
+    def x_m(self) -> np.ndarray:
+        return self.origin[0] + self.distance_m * self.dx[None, :]
+
+    @property
+    def y_m(self) -> np.ndarray:
+        return self.origin[1] + self.distance_m * self.dy[None, :]
+
+    @property
+    def z_m(self) -> np.ndarray:
+        d = self.distance_m
+        z_face = self.origin[2] + d * self.tan_e
+        z = self.face_sel * z_face + (1.0 - self.face_sel) * self.plane_h
+        return np.clip(z, 0.0, self.wall_h)
 
 
 def cast_rays(
@@ -243,80 +266,78 @@ def cast_rays(
     f_tab = seen_face[idx]  # −1: top of an obstacle
 
     # --- per pixel: nearest layer whose face spans the pixel's elevation --------
-    tan_e = (row_tan[:, None] * col_scale[None, :]).astype(np.float32)  # H×W
+    # (branch-free arithmetic on H×W arrays: np.where / boolean indexing are 10–50× slower here)
+    ft = np.float32 if texture else np.float64
+    tan_e = (row_tan[:, None] * col_scale[None, :]).astype(ft)  # H×W
     layer = np.full((H, W), Kp, np.int8)
     with np.errstate(divide="ignore", invalid="ignore"):
-        lo_tab = np.where(hit_ok, -z_m / d_tab, np.inf).astype(np.float32)
-        hi_tab = np.where(hit_ok, (h_tab - z_m) / d_tab, -np.inf).astype(np.float32)
+        lo_tab = np.where(hit_ok, -z_m / d_tab, np.inf).astype(ft)
+        hi_tab = np.where(hit_ok, (h_tab - z_m) / d_tab, -np.inf).astype(ft)
     for k in range(Kp - 1, -1, -1):  # painter's algorithm: far to near
         cover = tan_e >= lo_tab[k]
         cover &= tan_e <= hi_tab[k]
-        np.putmask(layer, cover, k)
+        layer -= cover.view(np.int8) * (layer - np.int8(k))
 
-    lin = layer.astype(np.int32) * W + np.arange(W, dtype=np.int32)[None, :]
-    pseudo = np.zeros((1, W))
-    is_face = np.take(np.vstack([f_tab >= 0, np.zeros((1, W), bool)]).ravel(), lin)
-    # planar pixels (floor, ceiling, obstacle top): the plane's height
-    plane_tab = np.vstack([np.where(f_tab >= 0, np.nan, h_tab), pseudo]).ravel().astype(np.float32)
-    plane_h = np.take(plane_tab, lin)
-    no_face = layer == Kp
-    plane_h[no_face] = np.where(tan_e[no_face] < 0.0, 0.0, wall_h)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dist = (np.float32(z_m) - plane_h) / -tan_e
-    dface = np.take(np.vstack([np.where(hit_ok, d_tab, 0.0), pseudo]).ravel().astype(np.float32), lin)
-    dist = np.where(is_face, dface, dist)
-    dist = np.where(np.isfinite(dist) & (dist > 0.0), np.minimum(dist, 1e3), 1e3).astype(np.float32)
+    lin = layer.astype(np.intp) * W + np.arange(W, dtype=np.intp)[None, :]
+    is_face_tab = (f_tab >= 0) & hit_ok
+    pseudo = layer == Kp
+    up = tan_e >= 0.0
+    pseudo_up = pseudo & up
 
-    kind = np.full((H, W), _TOP, np.int8)
-    kind[is_face] = _FACE
-    kind[no_face & (tan_e < 0.0)] = _FLOOR
-    kind[no_face & (tan_e >= 0.0)] = _CEILING
-    face = np.take(np.vstack([f_tab, np.full((1, W), -1)]).ravel(), lin)
+    def table(values: np.ndarray, pseudo_value: float = 0.0, dtype: type = ft) -> np.ndarray:
+        return np.vstack([values, np.full((1, W), pseudo_value)]).ravel().astype(dtype)
 
-    dist64 = dist.astype(np.float64)
-    x = ox + dist64 * dx[None, :]
-    y = oy + dist64 * dy[None, :]
-    z = np.where(is_face, np.float32(z_m) + dist * tan_e, plane_h).astype(np.float64)
-    np.clip(z, 0.0, wall_h, out=z)
+    fsel = np.take(table(is_face_tab), lin)  # 1 on faces, 0 on floor/ceiling/tops
+    # planar pixels: distance = (z_cam − plane height)/(−tan e); faces: the layer's distance
+    num = np.take(table(np.where(is_face_tab, 0.0, z_m - h_tab)), lin)
+    num += pseudo * ft(z_m) - pseudo_up * ft(wall_h)
+    tan_safe = tan_e + (tan_e == 0.0) * ft(1e-12)
+    dist = num / -tan_safe + np.take(table(np.where(is_face_tab, d_tab, 0.0)), lin)
+    np.clip(dist, 0.0, 1e3, out=dist)
+
+    kind = np.take(table(np.where(is_face_tab, _FACE, _TOP), _FLOOR, np.int8), lin)
+    kind += pseudo_up.view(np.int8) * np.int8(_CEILING - _FLOOR)
+    face = np.take(table(np.where(is_face_tab, f_tab, -1), -1, np.int64), lin)
+    plane_h = np.take(table(np.where(is_face_tab, 0.0, h_tab)), lin) + pseudo_up * ft(wall_h)
     if not texture:
-        empty = np.zeros((0, 0), np.float32)
-        return Hits(kind, dist64, face, x, y, z, empty, empty)
+        return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h)
 
-    # --- texture coordinates ----------------------------------------------------
+    # --- texture coordinates (float32) -------------------------------------------
     atlas = atlas_of(world)
     ppm = atlas.ppm
+    f32 = np.float32
     fsafe = np.maximum(f_tab, 0)
     s_tab = np.take_along_axis(s, idx.T, axis=1).T
     L = seg.face_length_m[fsafe]
     u_m = np.where(on_left[idx], (1.0 - s_tab) * L, s_tab * L)
-    ax_tab = atlas.face_x0[fsafe] + u_m * ppm
-    ay_tab = atlas.face_y0[fsafe] + (seg.face_height_m[fsafe] - z_m) * ppm  # minus ppm·d·tan_e per pixel
+    ax_tab = np.where(is_face_tab, atlas.face_x0[fsafe] + u_m * ppm, 0.0)
+    ay_tab = np.where(is_face_tab, atlas.face_y0[fsafe] + (seg.face_height_m[fsafe] - z_m) * ppm, 0.0)  # − ppm·d·tan e per pixel
     cos_h = np.abs(e[idx, 0] * dy[None, :] - e[idx, 1] * dx[None, :]) / np.hypot(e[idx, 0], e[idx, 1])
-    fp_tab = ppm * pixel_angle_rad[None, :] * np.where(hit_ok, d_tab, 0.0) / np.clip(cos_h, 0.35, 1.0)
-    ax_f = np.take(np.vstack([ax_tab, pseudo]).ravel().astype(np.float32), lin)
-    ay_f = np.take(np.vstack([ay_tab, pseudo]).ravel().astype(np.float32), lin) - np.float32(ppm) * dist * tan_e
-    # tiles: 0 floor, 1 ceiling, 2 + k top of obstacle k
-    tile_tab = np.vstack([2 + seg.obstacle[idx], np.zeros((1, W), np.int64)]).ravel().astype(np.int8)
-    tile = np.take(tile_tab, lin)
-    tile[no_face & (tan_e >= 0.0)] = 1
-    tppm = np.take(atlas.tile_ppm.astype(np.float32), tile)
-    tpx = np.take(atlas.tile_px.astype(np.float32), tile)
-    ax_t = np.take(atlas.tile_x0.astype(np.float32), tile) + np.mod((x * tppm).astype(np.float32), tpx)
-    ay_t = np.take(atlas.tile_y0.astype(np.float32), tile) + np.mod((-y * tppm).astype(np.float32), tpx)
-    ax = np.where(is_face, ax_f, ax_t)
-    ay = np.where(is_face, ay_f, ay_t)
+    fp_tab = np.where(is_face_tab, ppm * pixel_angle_rad[None, :] * np.where(hit_ok, d_tab, 0.0) / np.clip(cos_h, 0.35, 1.0), 0.0)
+    dist_t = dist * tan_e
+    # tiles: 0 floor, 1 ceiling, 2 + k top of obstacle k (face pixels get tile 0: finite, then discarded)
+    tile = np.take(table(np.where(is_face_tab, 0, 2 + seg.obstacle[idx]), 0, np.intp), lin) + pseudo_up
+    tppm = np.take(atlas.tile_ppm.astype(f32), tile)
+    tpx = np.take(atlas.tile_px.astype(f32), tile)
+    xs = (f32(ox) + dist * dx.astype(f32)[None, :]) * tppm
+    ys = (f32(-oy) - dist * dy.astype(f32)[None, :]) * tppm
+    ax_t = np.take(atlas.tile_x0.astype(f32), tile) + xs - np.floor(xs / tpx) * tpx
+    ay_t = np.take(atlas.tile_y0.astype(f32), tile) + ys - np.floor(ys / tpx) * tpx
+    nsel = 1.0 - fsel
+    ax = fsel * np.take(table(ax_tab), lin) + nsel * ax_t
+    ay = fsel * (np.take(table(ay_tab), lin) - f32(ppm) * dist_t) + nsel * ay_t
 
     # texel footprint (level-0 texels per pixel) → mip level
     t2 = 1.0 + tan_e * tan_e
-    fp_plane = np.float32(ppm) * pixel_angle_rad.astype(np.float32)[None, :] * dist / np.maximum(np.abs(tan_e), 0.35)
-    fp = np.where(is_face, np.take(np.vstack([fp_tab, pseudo]).ravel().astype(np.float32), lin), fp_plane) * t2
-    level = (fp >= 2.0).astype(np.int8)
+    fp_plane = f32(ppm) * pixel_angle_rad.astype(f32)[None, :] * dist / np.maximum(np.abs(tan_e), f32(0.35))
+    fp = (fsel * np.take(table(fp_tab), lin) + nsel * fp_plane) * t2
+    level = (fp >= 2.0).view(np.int8).copy()
     for lv in range(2, len(atlas.levels)):
-        level += fp >= 2.0**lv
-    scale = np.take(np.float32(0.5) ** np.arange(len(atlas.levels), dtype=np.float32), level)
-    map_x = np.take(atlas.level_x0, level) + ax * scale - 0.5
-    map_y = np.take(atlas.level_y0, level) + ay * scale - 0.5
-    return Hits(kind, dist64, face, x, y, z, map_x, map_y)
+        level += (fp >= 2.0**lv).view(np.int8)
+    scale = np.take(f32(0.5) ** np.arange(len(atlas.levels), dtype=f32), level)
+    map_x = np.take(atlas.level_x0, level) + ax * scale - f32(0.5)
+    map_y = np.take(atlas.level_y0, level) + ay * scale - f32(0.5)
+    return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, map_x, map_y)
 
 
 def _shade(world: World, hits: Hits) -> np.ndarray:

@@ -1,0 +1,81 @@
+"""Render timings of factorloc.sim (prints figures; no assertions).
+
+Run: ``.venv/bin/python benchmarks/bench_render.py``. Each renderer is timed
+over several poses of the built-in apartment (median of N runs, after one
+warm-up that bakes the texture atlas), next to a peer measured in the same
+run: one bare ``cv2.remap`` of an image of the same size (the texture
+sampling alone, a lower bound for any textured renderer).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+
+import cv2
+import numpy as np
+
+from factorloc import Pose2
+from factorloc.sim import (
+    DepthCamera,
+    PinholeCamera,
+    apartment,
+    render_camera,
+    render_cloud,
+    render_cloud_360,
+    render_panorama,
+    render_scan,
+)
+from factorloc.sim.textures import atlas_of
+
+POSES = [Pose2(3.0, 2.2, 0.3), Pose2(8.0, 4.1, math.pi), Pose2(8.0, 6.0, -0.4), Pose2(1.0, 1.5, -1.2), Pose2(5.0, 6.0, 2.0)]
+
+
+def _median_ms(fn, repeats: int = 4) -> float:
+    times = []
+    for _ in range(repeats):
+        for pose in POSES:
+            t0 = time.perf_counter()
+            fn(pose)
+            times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def _remap_ms(h: int, w: int, repeats: int = 20) -> float:
+    src = atlas_of(apartment()).packed
+    mx = np.random.default_rng(0).uniform(0, 4000, (h, w)).astype(np.float32)
+    my = np.random.default_rng(1).uniform(0, 1800, (h, w)).astype(np.float32)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        cv2.remap(src, mx, my, cv2.INTER_LINEAR)
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def main() -> None:
+    world = apartment()
+    t0 = time.perf_counter()
+    atlas_of(world)
+    print(f"texture atlas bake (once per world): {1e3 * (time.perf_counter() - t0):7.1f} ms")
+    render_panorama(world, POSES[0])
+    rng = np.random.default_rng(0)
+    rows = [
+        ("panorama 2048×256", _median_ms(lambda p: render_panorama(world, p, 1.0, 2048, math.radians(60))), _remap_ms(256, 2048)),
+        ("camera 640×480", _median_ms(lambda p: render_camera(world, p, PinholeCamera())), _remap_ms(480, 640)),
+        ("cloud 320×240 (noisy)", _median_ms(lambda p: render_cloud(world, p, DepthCamera(), rng)), None),
+        ("cloud 360°, 7 views, stride 4", _median_ms(lambda p: render_cloud_360(world, p, DepthCamera(stride_px=4), rng)), None),
+        ("cloud 360°, 7 views, full", _median_ms(lambda p: render_cloud_360(world, p, DepthCamera(), rng), 1), None),
+        ("scan 360 beams", _median_ms(lambda p: render_scan(world, p, rng=rng)), None),
+    ]
+    print(f"{'renderer':32s} {'median ms':>10s} {'bare remap ms':>14s} {'ratio':>7s}")
+    for name, ms, peer in rows:
+        if peer is None:
+            print(f"{name:32s} {ms:10.1f} {'-':>14s} {'-':>7s}")
+        else:
+            print(f"{name:32s} {ms:10.1f} {peer:14.1f} {ms / peer:7.1f}")
+
+
+if __name__ == "__main__":
+    main()
