@@ -35,6 +35,7 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.geometry import wrap_angle
 from factorloc.types import Estimate, Query, Reference
 from factorloc.vision import keypoints as kp
+from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed
 from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
 
 log = logging.getLogger(__name__)
@@ -73,6 +74,11 @@ class CompassConfig:
         Unreliable above this σθ2.
     sigma_floor_rad, max_effective_inliers
         The σ model (see module docstring).
+    parallax_correction
+        With a reference cloud/scan and a position hypothesis, vote with
+        parallax-free world bearings (:mod:`factorloc.vision.depth`).
+    camera_height_m
+        Height of the reference panorama's camera above the floor (m), to read the reference cloud.
     """
 
     enabled: bool = True
@@ -90,6 +96,8 @@ class CompassConfig:
     max_sigma_rad: float = math.radians(2.0)
     sigma_floor_rad: float = math.radians(0.1)
     max_effective_inliers: int = 30
+    parallax_correction: bool = True
+    camera_height_m: float = 1.0
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -121,10 +129,12 @@ class PreparedCompass:
 
     grid: Grid
     azimuth_rad: np.ndarray
+    elevation_rad: np.ndarray
     descriptors: np.ndarray | None
     theta_reference_rad: float
     problem: str | None
     config: CompassConfig
+    depth: DepthMap | None = None
 
 
 def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
@@ -140,7 +150,9 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     if problem is None and (desc is None or len(xy) < config.min_inliers):
         problem = f"reference panorama has only {len(xy)} keypoints"
     az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
-    return PreparedCompass(grid, az, desc, reference.T_world_reference.theta, problem, config)
+    el = np.asarray(grid.elevation_of_row(xy[:, 1]), dtype=np.float64) if len(xy) else np.zeros(0)
+    depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
+    return PreparedCompass(grid, az, el, desc, reference.T_world_reference.theta, problem, config, depth)
 
 
 def query_strips(query: Query, grid: Grid) -> tuple[list[Strip], list[str]]:
@@ -254,6 +266,13 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     az_q = np.concatenate(az_q_list)
     desc_q = np.concatenate(desc_list)
     az_r, desc_r = prepared.azimuth_rad, prepared.descriptors
+    position = position_seed(hypotheses) if prepared.depth is not None else None
+    ranges = None
+    if position is not None:
+        # parallax-free: each reference point's direction as seen from the query position (reference orientation)
+        world_dir, ranges = prepared.depth.world_headings(az_r, np.zeros_like(az_r), position[0], prepared.elevation_rad)
+        az_r = np.asarray(wrap_angle(world_dir - prepared.theta_reference_rad))
+    base["parallax_corrected"] = position is not None
     allowed = None
     if window is not None:
         # a reference point is a candidate for a query point when its vote falls in the window
@@ -261,6 +280,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         allowed = np.abs(votes_all) <= window + config.inlier_band_rad
         used = allowed.any(axis=0)
         az_r, desc_r, allowed = az_r[used], desc_r[used], allowed[:, used]
+        ranges = None if ranges is None else ranges[used]
     candidates = int(len(az_r))
     qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
     diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
@@ -272,13 +292,15 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     resid = np.asarray(wrap_angle(votes[inliers] - theta))
     spread = float(np.sqrt(np.mean(resid**2))) if n_in else math.pi
     n_eff = min(n_in, config.max_effective_inliers)
-    sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2)
+    sigma_par = parallax_sigma(position[1], ranges[ri[inliers]]) if position is not None and n_in else 0.0
+    sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     ambiguity = runner_up / n_in if n_in else 1.0
     diag.update(
         inliers=n_in,
         inlier_ratio=n_in / len(qi),
         spread_rad=spread,
+        sigma_parallax_rad=sigma_par,
         ambiguity=ambiguity,
         theta_relative_rad=theta,
     )

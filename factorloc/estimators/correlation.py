@@ -48,6 +48,7 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.estimators.compass import query_strips
 from factorloc.geometry import wrap_angle
 from factorloc.types import Estimate, Query, Reference
+from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
 
@@ -78,6 +79,11 @@ class CorrelationConfig:
         Multiplies the curvature-based σ (calibrated so that errors are ≈ σ).
     vertical_search_frac
         Vertical offsets searched around the horizon alignment, as a fraction of the panorama height.
+    parallax_correction
+        With a reference cloud/scan and a position hypothesis, correct the heading for the
+        parallax of the query's displacement (:mod:`factorloc.vision.depth`).
+    camera_height_m
+        Height of the reference panorama's camera above the floor (m), to read the reference cloud.
     """
 
     enabled: bool = True
@@ -90,6 +96,8 @@ class CorrelationConfig:
     max_sigma_rad: float = math.radians(2.0)
     sigma_gain: float = 1.0
     vertical_search_frac: float = 0.1
+    parallax_correction: bool = True
+    camera_height_m: float = 1.0
 
     def __post_init__(self) -> None:
         if self.pyramid_steps < 0:
@@ -123,6 +131,7 @@ class PreparedCorrelation:
     theta_reference_rad: float
     problem: str | None
     config: CorrelationConfig
+    depth: DepthMap | None = None
 
 
 def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig()) -> PreparedCorrelation:
@@ -139,7 +148,36 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
         levels.append(cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA))
         scales.append((w / grid.width_px, h / grid.height_px))
     problem = texture_problem(gray)
-    return PreparedCorrelation(grid, tuple(levels), tuple(scales), reference.T_world_reference.theta, problem, config)
+    depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
+    return PreparedCorrelation(grid, tuple(levels), tuple(scales), reference.T_world_reference.theta, problem, config, depth)
+
+
+def _view_azimuths(strip: Strip, n: int = 9) -> np.ndarray:
+    """``n`` robot-frame azimuths across a view (its middle 80 %)."""
+    j = np.linspace(0.1, 0.9, n) * (strip.width_px - 1)
+    return np.asarray(strip.azimuth_of_column(j), dtype=np.float64)
+
+
+def _corrected(depth: DepthMap, strip: Strip, theta_unc: float, position: tuple[float, float]) -> tuple[float, float]:
+    """Parallax-free relative heading of a view matched at the uncorrected relative heading, and the median range (m).
+
+    The view's directions ``a_j`` matched reference azimuths ``θ_unc + a_j``; the points there, seen from
+    ``position``, give world headings ``β_j − a_j`` whose circular median-like mean is returned (relative
+    to the reference's heading).
+    """
+    a = _view_azimuths(strip)
+    world, ranges = depth.world_headings(np.asarray(wrap_angle(theta_unc + a)), a, position)
+    rel = np.asarray(wrap_angle(world - depth.T_world_reference.theta - theta_unc))
+    return float(wrap_angle(theta_unc + float(np.median(rel)))), float(np.median(ranges))
+
+
+def _uncorrected(depth: DepthMap, strip: Strip, theta_corr: float, position: tuple[float, float]) -> float:
+    """Inverse of :func:`_corrected` by fixed-point iteration: where the view matches if the heading is ``theta_corr``."""
+    theta = theta_corr
+    for _ in range(6):
+        got, _ = _corrected(depth, strip, theta, position)
+        theta = float(wrap_angle(theta + wrap_angle(theta_corr - got)))
+    return theta
 
 
 @dataclass
@@ -225,8 +263,13 @@ def _level_curve(
     q: float,
     seed: tuple[float, float] | None,
     config: CorrelationConfig,
+    offsets: list[float] | None = None,
 ) -> _Curve | None:
-    """Correlate every view, resized by ``q``, with reference level ``k`` (hypothesised scale label ``m``)."""
+    """Correlate every view, resized by ``q``, with reference level ``k`` (hypothesised scale label ``m``).
+
+    ``offsets[i]`` (rad) is view i's parallax near the seed (corrected − uncorrected heading): its
+    window is shifted by it and its curve aligned on the corrected axis.
+    """
     grid = prepared.grid
     ref = prepared.levels[k]
     sx, sy = prepared.scales[k]
@@ -235,7 +278,8 @@ def _level_curve(
     curves = []
     total = 0
     first = None
-    for strip in strips:
+    for i, strip in enumerate(strips):
+        off = 0.0 if offsets is None else offsets[i]
         if strip.full_circle and (k != 0 or q != 1.0):
             continue  # a 360° view has no single scale: only level 0
         tpl = _template(strip, q)
@@ -267,7 +311,7 @@ def _level_curve(
                 half = None
             first = (theta_s, half)
         theta_s, half = first
-        x_c = float(wrap_angle(A - theta_s)) / beta
+        x_c = float(wrap_angle(A - (theta_s - off))) / beta
         if half is None:
             x_lo, x_hi = 0, w_ref - 1
         else:
@@ -331,9 +375,16 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     base["dropped_views"] = dropped
     if not strips:
         return _unreliable(prepared, theta_fallback, "no usable query view: " + "; ".join(dropped), **base)
+    position = position_seed(hypotheses) if prepared.depth is not None else None
+    offsets = None
+    if position is not None and seed is not None:
+        offsets = [float(wrap_angle(seed[0] - _uncorrected(prepared.depth, st, seed[0], position[0]))) for st in strips]
+    base["parallax_corrected"] = position is not None
     n = config.pyramid_steps
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
-    curves = [cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config)) is not None]
+    curves = [
+        cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None
+    ]
     if not curves:
         return _unreliable(prepared, theta_fallback, "no view fits the reference pyramid", **base)
     searched = sum(cv.positions for cv in curves)
@@ -364,7 +415,9 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     scale = config.pyramid_ratio ** (-m_ref)
     if not at_edge and abs(m_ref) > 0.05:
         # refinement pass at the refined scale: the views resized by 1/scale against the full reference
-        fine = _level_curve(prepared, strips, m_ref, 0, 1.0 / scale, (float(wrap_angle(theta)), 3.0 * best.beta), config)
+        fine = _level_curve(
+            prepared, strips, m_ref, 0, 1.0 / scale, (float(wrap_angle(theta)), 3.0 * best.beta), config, offsets
+        )
         if fine is not None and fine.c.size >= 3:
             kf = int(np.argmax(fine.c))
             if 0 < kf < fine.c.size - 1:
@@ -381,6 +434,16 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         sigma = max(sigma_px * best.beta, best.pixel_rad)
     else:
         sigma = math.pi
+    sigma_par = 0.0
+    if position is not None:
+        # exact parallax correction through the first view (the curve axis is its, linearised near the seed)
+        off0 = 0.0 if offsets is None else offsets[0]
+        theta_unc = float(wrap_angle(theta - off0))
+        theta_parallax_free, range_m = _corrected(prepared.depth, strips[0], theta_unc, position[0])
+        base["parallax_rad"] = float(wrap_angle(theta_parallax_free - theta_unc))
+        theta = theta_parallax_free
+        sigma_par = parallax_sigma(position[1], np.array([range_m]))
+        sigma = math.hypot(sigma, sigma_par)
     diag = dict(
         base,
         peak=peak,
@@ -390,6 +453,7 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         curvature_per_px2=kappa,
         pixel_rad=best.pixel_rad,
         level_peaks={str(m): v for m, v in sorted(values.items())},
+        sigma_parallax_rad=sigma_par,
         views=len(strips),
         theta_relative_rad=theta,
     )

@@ -1,0 +1,142 @@
+"""Parallax correction of visual headings from the reference's depth and a position hypothesis.
+
+A visual heading ``θ = az_ref − az_query`` is exact only when the query
+stands where the reference was taken: from a position displaced by ``d``, a
+point at range ``D`` is seen turned by up to ``atan(d/D)`` (tens of degrees
+indoors at 1–2 m). When the reference carries a cloud or a scan, the point
+behind a reference direction ``(az, el)`` is known, ``P = T_world_reference ·
+D(az, el)·(cos az, sin az)``; given the query's world position ``p`` (a
+position hypothesis, e.g. odometry), the query sees it along the world
+bearing ``β = atan2(P − p)``, so the pair votes for the world heading
+``θ = β − az_query`` (no parallax). A position error ``σ_p`` leaves a heading
+error of about ``σ_p / |P − p|`` — that term enters the estimators' σ.
+
+:class:`DepthMap` holds the horizontal range ``D`` on a coarse grid over the
+reference panorama (rows = elevation, columns = azimuth): from a 3D cloud by
+z-buffering the points (nearest wins) seen from the panorama's camera
+height, from a 2D scan as one row valid for all elevations; empty cells take
+the nearest filled one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from factorloc.geometry import Pose2, wrap_angle
+from factorloc.types import Reference
+from factorloc.vision.strips import Grid
+
+
+@dataclass(frozen=True, eq=False)
+class DepthMap:
+    """Horizontal range (m) behind the reference panorama's directions, on a coarse (rows × cols) grid."""
+
+    range_m: np.ndarray
+    grid: Grid
+    T_world_reference: Pose2
+    camera_height_m: float
+
+    def range_at(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
+        """Horizontal range (m) behind reference-frame directions (azimuth, elevation; radians)."""
+        rows, cols = self.range_m.shape
+        az = np.asarray(azimuth_rad, dtype=np.float64)
+        u = np.mod((self.grid.azimuth_col0_rad - az) / self.grid.rad_per_px, self.grid.width_px)
+        c = np.minimum((u * cols / self.grid.width_px).astype(int), cols - 1)
+        if rows == 1 or elevation_rad is None:
+            r = np.full(c.shape, rows // 2)
+        else:
+            v = 0.5 * self.grid.height_px - self.grid.focal_v_px * np.tan(np.asarray(elevation_rad, dtype=np.float64))
+            r = np.clip((v * rows / self.grid.height_px).astype(int), 0, rows - 1)
+        return self.range_m[r, c]
+
+    def world_points(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
+        """World-frame xy (N×2, m) of the points behind reference-frame directions."""
+        az = np.asarray(azimuth_rad, dtype=np.float64)
+        d = self.range_at(az, elevation_rad)
+        local = np.column_stack([d * np.cos(az), d * np.sin(az)])
+        return self.T_world_reference.transform_points(local)
+
+    def world_headings(
+        self,
+        az_ref_rad: np.ndarray,
+        az_query_rad: np.ndarray,
+        position_xy_m: tuple[float, float],
+        elevation_rad: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Parallax-free world headings ``atan2(P − p) − az_query`` of pairs, and the ranges ``|P − p|`` (m)."""
+        pts = self.world_points(az_ref_rad, elevation_rad)
+        delta = pts - np.asarray(position_xy_m, dtype=np.float64)[None, :]
+        bearing = np.arctan2(delta[:, 1], delta[:, 0])
+        return np.asarray(wrap_angle(bearing - np.asarray(az_query_rad, dtype=np.float64))), np.hypot(delta[:, 0], delta[:, 1])
+
+
+def depth_map(reference: Reference, grid: Grid, camera_height_m: float, shape: tuple[int, int] = (32, 360)) -> DepthMap | None:
+    """The reference's depth behind its panorama, from ``reference.cloud`` (preferred) or ``reference.scan``.
+
+    Parameters
+    ----------
+    reference
+        Its cloud (N×3, robot frame, z up from the floor) or scan (N×2) gives the ranges.
+    grid
+        The reference panorama's grid.
+    camera_height_m
+        Height of the panorama's camera above the floor (m), to place cloud points in elevation.
+    shape
+        (rows, cols) of the coarse grid.
+
+    Returns
+    -------
+    DepthMap or None
+        None when the reference has neither, or fewer than 10 usable points.
+    """
+    rows, cols = shape
+    if reference.cloud is not None and len(reference.cloud) >= 10:
+        p = reference.cloud.points_m
+        rng = np.hypot(p[:, 0], p[:, 1])
+        az = np.arctan2(p[:, 1], p[:, 0])
+        el = np.arctan2(p[:, 2] - camera_height_m, np.maximum(rng, 1e-6))
+        v = 0.5 * grid.height_px - grid.focal_v_px * np.tan(np.clip(el, -1.5, 1.5))
+        r_idx = np.floor(v * rows / grid.height_px).astype(int)
+    elif reference.scan is not None and len(reference.scan) >= 10:
+        p = reference.scan.points_m
+        rng = np.hypot(p[:, 0], p[:, 1])
+        az = np.arctan2(p[:, 1], p[:, 0])
+        rows = 1
+        r_idx = np.zeros(len(p), dtype=int)
+    else:
+        return None
+    u = np.mod((grid.azimuth_col0_rad - az) / grid.rad_per_px, grid.width_px)
+    c_idx = np.minimum((u * cols / grid.width_px).astype(int), cols - 1)
+    keep = (r_idx >= 0) & (r_idx < rows) & (rng > 0.05)
+    if keep.sum() < 10:
+        return None
+    out = np.full((rows, cols), np.inf)
+    np.minimum.at(out, (r_idx[keep], c_idx[keep]), rng[keep])  # z-buffer: the nearest point wins
+    # fill empty cells from the nearest filled one (columns treated as periodic)
+    half = cols // 2
+    padded = np.concatenate([out[:, cols - half :], out, out[:, :half]], axis=1)
+    empty = ~np.isfinite(padded)
+    _, (ri, ci) = ndimage.distance_transform_edt(empty, return_indices=True)
+    filled = padded[ri, ci][:, half : half + cols]
+    filled = np.ascontiguousarray(filled)
+    filled.setflags(write=False)
+    return DepthMap(filled, grid, reference.T_world_reference, float(camera_height_m))
+
+
+def position_seed(hypotheses) -> tuple[tuple[float, float], float] | None:  # noqa: ANN001 - Hypotheses
+    """``((x, y), σ)`` of the latest reliable position hypothesis (σ = the larger axis σ, m), or None."""
+    h = hypotheses.position()
+    if h is None:
+        return None
+    x, y, sx, sy, _ = h
+    return (x, y), max(sx, sy)
+
+
+def parallax_sigma(sigma_position_m: float, ranges_m: np.ndarray) -> float:
+    """Heading σ (rad) a position σ leaves on bearings to points at ``ranges_m``: ``σ_p / median range``."""
+    r = float(np.median(ranges_m)) if np.size(ranges_m) else math.inf
+    return math.atan(sigma_position_m / max(r, 1e-3))
