@@ -287,7 +287,7 @@ def confidently_wrong(
 def values_of_estimate(estimate: Estimate) -> np.ndarray:
     """The estimate as a 3-vector (x_m, y_m, theta_rad), ``nan`` where it measures nothing."""
     out = np.full(3, np.nan)
-    for c, v in zip(estimate.components, estimate.values):
+    for c, v in zip(estimate.components, estimate.values, strict=True):
         out[_INDEX[c]] = v
     return out
 

@@ -239,7 +239,13 @@ def run_hierarchy(
         if progress is not None:
             progress(i + 1, total)
     return HierarchyRun(
-        data, cfg, bool(seeded), tuple(runs), dict(localizer.prepare_seconds), peak_memory_mb(), tuple(s.name for s in localizer.steps)
+        data,
+        cfg,
+        bool(seeded),
+        tuple(runs),
+        dict(localizer.prepare_seconds),
+        peak_memory_mb(),
+        tuple(s.name for s in localizer.steps),
     )
 
 
@@ -349,7 +355,16 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
             cov[i, i] = math.inf
         out.append(
             QueryResult(
-                qr.index, qr.case.query.id, qr.case.truth, qr.case.faults, fused.pose, cov, qr.reports, qr.steps_seconds + dt, dt, _distance(qr.case, ref)
+                qr.index,
+                qr.case.query.id,
+                qr.case.truth,
+                qr.case.faults,
+                fused.pose,
+                cov,
+                qr.reports,
+                qr.steps_seconds + dt,
+                dt,
+                _distance(qr.case, ref),
             )
         )
     return out
@@ -405,7 +420,8 @@ def evaluate(
         results = _fuse_per_query(run, strategy)
     else:
         raise InputError(
-            f"strategy must implement FusionStrategy (name, fuse) or SequentialStrategy (name, reset, update), got {type(strategy).__name__}"
+            "strategy must implement FusionStrategy (name, fuse) or SequentialStrategy (name, reset, update), "
+            f"got {type(strategy).__name__}"
         )
     return EvaluationReport(run, str(strategy.name), tuple(results))
 
@@ -560,12 +576,12 @@ class EvaluationReport:
         reasons = Counter(
             f"{r.status.value}: {_normalize_reason(r.reason)}"
             for r in reports
-            if r is not None and r.status in (StepStatus.UNRELIABLE, StepStatus.INCONSISTENT, StepStatus.FAILED, StepStatus.SKIPPED)
+            if r is not None and r.status is not StepStatus.FUSED
         )
         # the step's own accuracy and honesty, over its reliable estimates of queries with truth
         rows = [
             (metrics.values_of_estimate(r.estimate), metrics.covariance_of_estimate(r.estimate), q.truth.as_array())
-            for r, q, ok in zip(reports, res, reliable)
+            for r, q, ok in zip(reports, res, reliable, strict=True)
             if ok and q.truth is not None
         ]
         if rows:

@@ -145,7 +145,7 @@ def test_one_hierarchy_run_serves_several_strategies_with_identical_gating() -> 
     assert graph.strategy == "graph" and product.strategy == "product"
     np.testing.assert_allclose(graph.errors, product.errors, atol=1e-9)
     # the fused result of the default strategy is the one Localizer.localize returned
-    for res, qr in zip(graph.results, run.runs):
+    for res, qr in zip(graph.results, run.runs, strict=True):
         np.testing.assert_allclose(res.pose.as_array(), qr.localization.pose.as_array(), atol=1e-12)
         assert [r.status for r in res.reports] == [r.status for r in qr.reports]
         assert res.latency_s >= qr.steps_seconds

@@ -1,0 +1,349 @@
+"""Figures of an evaluation: pure ``plot_*_on_axes(ax, ...)`` functions and thin wrappers.
+
+Every ``plot_*_on_axes`` draws on a given matplotlib ``Axes`` and returns it,
+so notebooks can compose them; every ``*_figure`` wrapper makes a new
+:class:`matplotlib.figure.Figure` (no pyplot state, no display: safe on the
+Agg backend, in tests and on servers) and returns it;
+:func:`save_report_figures` writes all of them as PNG files.
+
+Units at the edges: metres on the floor plan, centimetres and degrees on the
+error plots. Covariance ellipses are drawn at a stated confidence: the
+``p`` ellipse of a 2-D Gaussian is ``{e : eᵀ Σ⁻¹ e ≤ χ²₂⁻¹(p)}`` (5.991 for 95 %).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.patches import Ellipse, Polygon
+from scipy.stats import chi2
+
+from factorloc.errors import InputError
+from factorloc.geometry import Pose2
+from factorloc.types import StepStatus
+
+if TYPE_CHECKING:  # pragma: no cover
+    from factorloc.evaluation.runner import EvaluationReport
+    from factorloc.sim.world import World
+
+__all__ = [
+    "STATUS_COLORS",
+    "availability_figure",
+    "calibration_figure",
+    "covariance_ellipse",
+    "error_vs_distance_figure",
+    "floor_plan_figure",
+    "plot_availability_on_axes",
+    "plot_covariance_ellipse_on_axes",
+    "plot_error_vs_distance_on_axes",
+    "plot_estimates_on_axes",
+    "plot_nees_on_axes",
+    "plot_world_on_axes",
+    "save_report_figures",
+]
+
+#: Colours of the step statuses (green fused … red failed), shared by every figure.
+STATUS_COLORS: dict[str, str] = {
+    StepStatus.FUSED.value: "#2e9d5b",
+    StepStatus.UNRELIABLE.value: "#f0b429",
+    StepStatus.INCONSISTENT.value: "#d9534f",
+    StepStatus.SKIPPED.value: "#b8bec6",
+    StepStatus.FAILED.value: "#7a1f1f",
+}
+TRUTH_COLOR = "#1f4e79"
+ESTIMATE_COLOR = "#d1495b"
+FAULT_CMAP = "tab10"
+
+
+# --------------------------------------------------------------------------
+# Geometry of an ellipse
+# --------------------------------------------------------------------------
+def covariance_ellipse(covariance_xy: np.ndarray, confidence: float = 0.95) -> tuple[float, float, float]:
+    """Full width, full height (m) and angle (deg, CCW from x) of the ``confidence`` ellipse of a 2×2 covariance.
+
+    Half-axes are ``√(χ²₂⁻¹(p) λᵢ)`` along the eigenvectors of Σ.
+    """
+    cov = np.asarray(covariance_xy, dtype=np.float64)
+    if cov.shape != (2, 2) or not np.all(np.isfinite(cov)):
+        raise InputError(f"covariance_xy must be a finite 2×2 matrix, got {cov.tolist()}")
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"confidence must be in (0, 1), got {confidence!r}")
+    vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
+    vals = np.maximum(vals, 0.0)
+    k = chi2.ppf(confidence, 2)
+    width, height = 2.0 * math.sqrt(k * vals[1]), 2.0 * math.sqrt(k * vals[0])
+    angle = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
+    return width, height, angle
+
+
+def plot_covariance_ellipse_on_axes(
+    ax: Axes, center_xy: Sequence[float], covariance_xy: np.ndarray, confidence: float = 0.95, **kwargs: Any
+) -> Axes:
+    """Draw the ``confidence`` ellipse of a 2×2 position covariance (m²) centred at ``center_xy`` (m)."""
+    w, h, a = covariance_ellipse(covariance_xy, confidence)
+    style = {"fill": False, "lw": 1.0, "ec": ESTIMATE_COLOR, "alpha": 0.8}
+    style.update(kwargs)
+    ax.add_patch(Ellipse((float(center_xy[0]), float(center_xy[1])), w, h, angle=a, **style))
+    return ax
+
+
+# --------------------------------------------------------------------------
+# Floor plan
+# --------------------------------------------------------------------------
+def plot_world_on_axes(ax: Axes, world: World) -> Axes:
+    """Draw a :class:`factorloc.sim.World`'s walls (lines) and obstacles (grey polygons), metres, equal aspect."""
+    for w in world.walls:
+        xs, ys = [w.start_xy[0], w.end_xy[0]], [w.start_xy[1], w.end_xy[1]]
+        ax.plot(xs, ys, color="#333333", lw=2.0, solid_capstyle="round", zorder=1)
+    for ob in world.obstacles:
+        ax.add_patch(Polygon(np.asarray(ob.vertices_xy), closed=True, fc="#d8d2c4", ec="#8a8170", lw=0.8, zorder=1))
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return ax
+
+
+def _arrow(ax: Axes, pose: Pose2, length: float, color: str, **kwargs: Any) -> None:
+    ax.annotate(
+        "",
+        xy=(pose.x + length * math.cos(pose.theta), pose.y + length * math.sin(pose.theta)),
+        xytext=(pose.x, pose.y),
+        arrowprops={"arrowstyle": "-|>", "color": color, "lw": 1.0, "mutation_scale": 7},
+        **kwargs,
+    )
+
+
+def plot_estimates_on_axes(
+    ax: Axes, report: EvaluationReport, *, confidence: float = 0.95, arrow_m: float = 0.25, ellipse_scale: float = 1.0
+) -> Axes:
+    """True poses (blue dots, heading arrows), estimates (red crosses) and their ``confidence`` ellipses.
+
+    A grey line joins each estimate to its truth; queries whose position is
+    under-determined show their truth only (hollow marker). The reference
+    pose is a black star. ``ellipse_scale`` magnifies the ellipses (cm-sized
+    ellipses are invisible on a 10 m plan); the legend states it.
+    """
+    ref = report.run.dataset.reference.T_world_reference
+    tx, ty, ex, ey, ux, uy = [], [], [], [], [], []
+    for r in report.results:
+        det = r.determined
+        if r.truth is not None:
+            _arrow(ax, r.truth, arrow_m, TRUTH_COLOR, zorder=3)
+            if det[0] and det[1]:
+                tx.append(r.truth.x)
+                ty.append(r.truth.y)
+            else:
+                ux.append(r.truth.x)
+                uy.append(r.truth.y)
+        if det[0] and det[1]:
+            ex.append(r.pose.x)
+            ey.append(r.pose.y)
+            if r.truth is not None:
+                ax.plot([r.truth.x, r.pose.x], [r.truth.y, r.pose.y], color="#777777", lw=0.6, zorder=2)
+            plot_covariance_ellipse_on_axes(
+                ax, (r.pose.x, r.pose.y), (ellipse_scale**2) * r.covariance[:2, :2], confidence, zorder=4
+            )
+    ax.scatter(tx, ty, s=14, color=TRUTH_COLOR, label="true pose", zorder=5)
+    if ux:
+        ax.scatter(ux, uy, s=18, facecolors="none", edgecolors=TRUTH_COLOR, label="true pose (position undetermined)", zorder=5)
+    ax.scatter(ex, ey, s=18, marker="x", color=ESTIMATE_COLOR, lw=1.2, label="estimate", zorder=6)
+    ax.scatter([ref.x], [ref.y], s=140, marker="*", color="black", label="reference", zorder=7)
+    scale = "" if ellipse_scale == 1.0 else f" ×{ellipse_scale:g}"
+    ax.plot([], [], color=ESTIMATE_COLOR, lw=1.0, label=f"{100 * confidence:.0f} % ellipse{scale}")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize="small", framealpha=0.9)
+    return ax
+
+
+def floor_plan_figure(
+    report: EvaluationReport, world: World | None = None, *, confidence: float = 0.95, ellipse_scale: float | None = None
+) -> Figure:
+    """The floor plan (``world``, default the report's) with true/estimated poses and ellipses.
+
+    ``ellipse_scale`` defaults to a factor that makes the median ellipse ~2 % of the plan's size (≥ 1).
+    """
+    world = world if world is not None else report.run.dataset.world
+    fig = Figure(figsize=(9.0, 7.0), layout="constrained")
+    ax = fig.add_subplot()
+    if world is not None:
+        plot_world_on_axes(ax, world)
+    if ellipse_scale is None:
+        ellipse_scale = _auto_ellipse_scale(report, world)
+    plot_estimates_on_axes(ax, report, confidence=confidence, ellipse_scale=ellipse_scale)
+    ax.set_title(f"{report.name}: true and estimated poses ({report.strategy})")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    return fig
+
+
+def _auto_ellipse_scale(report: EvaluationReport, world: World | None) -> float:
+    sig = [math.sqrt(max(np.linalg.eigvalsh(r.covariance[:2, :2])[-1], 0.0)) for r in report.results if r.determined[:2].all()]
+    if not sig:
+        return 1.0
+    if world is not None:
+        x0, y0, x1, y1 = world.bounds_xy
+        size = max(x1 - x0, y1 - y0)
+    else:
+        pts = np.array([[r.truth.x, r.truth.y] for r in report.results if r.truth is not None] or [[0.0, 0.0]])
+        size = max(float(np.ptp(pts[:, 0])), float(np.ptp(pts[:, 1])), 1.0)
+    target = 0.01 * size  # half-width ≈ 1 % of the plan
+    med = float(np.median(sig)) * math.sqrt(chi2.ppf(0.95, 2))
+    if med <= 0.0 or med >= target:
+        return 1.0
+    ratio = target / med
+    magnitude = 10.0 ** math.floor(math.log10(ratio))
+    return next(m * magnitude for m in (5.0, 2.0, 1.0) if m * magnitude <= ratio)
+
+
+# --------------------------------------------------------------------------
+# Errors against distance from the reference
+# --------------------------------------------------------------------------
+def _fault_label(faults: tuple[str, ...]) -> str:
+    return "+".join(faults) if faults else "no fault"
+
+
+def plot_error_vs_distance_on_axes(ax: Axes, report: EvaluationReport, *, component: str = "position") -> Axes:
+    """Position error (cm) or heading error (deg) against the true distance from the reference (m), by fault.
+
+    ``component`` is ``"position"`` or ``"heading"``; undetermined results are left out.
+    """
+    if component not in ("position", "heading"):
+        raise InputError(f"component must be 'position' or 'heading', got {component!r}")
+    err = report.errors
+    d = np.array([r.distance_to_reference_m for r in report.results])
+    y = 100.0 * np.hypot(err[:, 0], err[:, 1]) if component == "position" else np.degrees(np.abs(err[:, 2]))
+    floor = 0.01 if component == "position" else 0.001
+    labels = [_fault_label(r.faults) for r in report.results]
+    order = sorted(set(labels), key=lambda s: (s != "no fault", s))
+    cmap = _colormap(FAULT_CMAP)
+    for i, lab in enumerate(order):
+        sel = np.array([lb == lab for lb in labels]) & np.isfinite(y) & np.isfinite(d)
+        if sel.any():
+            ax.scatter(d[sel], np.maximum(y[sel], floor), s=16, color=cmap(i % 10), label=f"{lab} ({int(sel.sum())})", alpha=0.85)
+    ax.set_xlabel("distance from the reference (m)")
+    ax.set_ylabel("position error (cm)" if component == "position" else "heading error (°)")
+    ax.set_yscale("log")  # values below the floor (0.1 mm / 0.001°) are drawn at the floor
+    finite = y[np.isfinite(y)]
+    if finite.size:
+        ax.set_ylim(bottom=max(floor, 0.5 * float(np.min(np.maximum(finite, floor)))))
+    ax.grid(True, which="both", alpha=0.3)
+    if order:
+        ax.legend(fontsize="small", loc="upper left")
+    return ax
+
+
+def _colormap(name: str) -> Any:
+    from matplotlib import colormaps
+
+    return colormaps[name]
+
+
+def error_vs_distance_figure(report: EvaluationReport) -> Figure:
+    """Position and heading error against distance from the reference, side by side."""
+    fig = Figure(figsize=(11.0, 4.2), layout="constrained")
+    a1, a2 = fig.subplots(1, 2)
+    plot_error_vs_distance_on_axes(a1, report, component="position")
+    plot_error_vs_distance_on_axes(a2, report, component="heading")
+    a1.set_title("position error")
+    a2.set_title("heading error")
+    fig.suptitle(f"{report.name}: error vs distance from the reference ({report.strategy})")
+    return fig
+
+
+# --------------------------------------------------------------------------
+# Availability
+# --------------------------------------------------------------------------
+def plot_availability_on_axes(ax: Axes, report: EvaluationReport) -> Axes:
+    """Per step, the fraction of queries it was fused / unreliable / inconsistent / skipped / failed (stacked bars)."""
+    steps = report.to_json_dict()["steps"]
+    names = list(steps)
+    left = np.zeros(len(names))
+    for status in [s.value for s in StepStatus]:
+        frac = np.array([steps[n]["status_rates"].get(status, 0.0) or 0.0 for n in names])
+        if frac.any():
+            ax.barh(names, frac, left=left, color=STATUS_COLORS[status], label=status, edgecolor="white", height=0.6)
+            for i, (lft, f) in enumerate(zip(left, frac, strict=True)):
+                if f >= 0.08:
+                    ax.text(lft + f / 2, i, f"{100 * f:.0f} %", ha="center", va="center", fontsize=8, color="white")
+        left += frac
+    ax.set_xlim(0.0, 1.0)
+    ax.invert_yaxis()  # hierarchy order top to bottom
+    ax.set_xlabel("fraction of queries")
+    ax.legend(ncol=5, fontsize="small", loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
+    return ax
+
+
+def availability_figure(report: EvaluationReport) -> Figure:
+    """The per-step availability bar chart."""
+    n = len(report.run.step_names)
+    fig = Figure(figsize=(8.0, 1.2 + 0.55 * max(n, 1)), layout="constrained")
+    plot_availability_on_axes(fig.add_subplot(), report)
+    fig.suptitle(f"{report.name}: what became of each step ({len(report.results)} queries)")
+    return fig
+
+
+# --------------------------------------------------------------------------
+# Calibration
+# --------------------------------------------------------------------------
+def plot_nees_on_axes(ax: Axes, report: EvaluationReport, *, max_nees: float = 20.0, bins: int = 30) -> Axes:
+    """Histogram (density) of the 3-dof NEES of fully determined results against the χ²(3) density.
+
+    Values above ``max_nees`` are counted in the last bin; the title-less
+    legend gives their number, the mean NEES and the expected 3.
+    """
+    e, k = report.nees
+    v = e[(k == 3) & np.isfinite(e)]
+    x = np.linspace(0.0, max_nees, 400)
+    ax.plot(x, chi2.pdf(x, 3), color="black", lw=1.5, label="χ²(3) density (calibrated)")
+    if v.size:
+        over = int(np.count_nonzero(v > max_nees))
+        ax.hist(np.minimum(v, max_nees * 0.9999), bins=bins, range=(0.0, max_nees), density=True,
+                color="#4c8bc9", alpha=0.7, label=f"NEES of {v.size} results (mean {v.mean():.2f})")
+        if over:
+            ax.plot([], [], " ", label=f"{over} above {max_nees:g} (in last bin)")
+    ax.axvline(chi2.ppf(0.99, 3), color="#d9534f", ls="--", lw=1.0, label="99 % bound (11.34)")
+    ax.set_xlim(0.0, max_nees)
+    ax.set_xlabel("NEES  εᵀΣ⁻¹ε  (3 dof)")
+    ax.set_ylabel("density")
+    ax.legend(fontsize="small")
+    return ax
+
+
+def calibration_figure(report: EvaluationReport) -> Figure:
+    """The calibration plot: NEES histogram against the χ²(3) density."""
+    fig = Figure(figsize=(7.0, 4.2), layout="constrained")
+    plot_nees_on_axes(fig.add_subplot(), report)
+    fig.suptitle(f"{report.name}: is the claimed covariance honest? ({report.strategy})")
+    return fig
+
+
+# --------------------------------------------------------------------------
+# All of them
+# --------------------------------------------------------------------------
+def save_report_figures(
+    report: EvaluationReport, out_dir: str | Path, world: World | None = None, *, dpi: int = 120
+) -> list[Path]:
+    """Write the four figures of ``report`` as PNG into ``out_dir`` (created) and return their paths.
+
+    Files: ``floor_plan.png``, ``error_vs_distance.png``, ``availability.png``, ``calibration.png``.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {
+        "floor_plan.png": floor_plan_figure(report, world),
+        "error_vs_distance.png": error_vs_distance_figure(report),
+        "availability.png": availability_figure(report),
+        "calibration.png": calibration_figure(report),
+    }
+    paths = []
+    for name, fig in figures.items():
+        path = out / name
+        fig.savefig(path, dpi=dpi)
+        paths.append(path)
+    return paths
