@@ -1,1 +1,28 @@
-"""The on-disk scenario format and loaders for public datasets."""
+"""The on-disk scenario format and loaders for public datasets.
+
+>>> from factorloc.datasets import load_scenario, save_scenario, Scenario   # doctest: +SKIP
+>>> s = load_scenario("data/sample")                                        # doctest: +SKIP
+>>> s.reference, s.queries[0].query, s.queries[0].truth, s.queries[0].faults  # doctest: +SKIP
+
+See ``docs/data-format.md`` for the directory layout and a hand-written example.
+"""
+
+from factorloc.datasets.scenario import (
+    FAULT_TAGS,
+    FORMAT_VERSION,
+    Scenario,
+    ScenarioQuery,
+    ScenarioReference,
+    load_scenario,
+    save_scenario,
+)
+
+__all__ = [
+    "FAULT_TAGS",
+    "FORMAT_VERSION",
+    "Scenario",
+    "ScenarioQuery",
+    "ScenarioReference",
+    "load_scenario",
+    "save_scenario",
+]
