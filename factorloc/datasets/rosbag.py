@@ -341,7 +341,12 @@ def read_scans(
             rmax = min(rmax, float(max_range_m))
         scans.append(
             laser_ranges_to_scan(
-                msg.ranges, float(msg.angle_min), float(msg.angle_increment), float(msg.range_min), rmax, T_robot_laser=T_robot_laser
+                msg.ranges,
+                float(msg.angle_min),
+                float(msg.angle_increment),
+                float(msg.range_min),
+                rmax,
+                T_robot_laser=T_robot_laser,
             )
         )
         stamps.append(_stamp_s(msg, t_ns))

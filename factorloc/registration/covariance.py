@@ -1,0 +1,119 @@
+"""Covariance of a 2D ICP solution.
+
+Three estimators, all 3×3 over (x, y, θ) of the source pose in the target
+frame (the parametrisation of :mod:`factorloc.registration.icp2d`):
+
+* :func:`chamfer_covariance` — the patent's: an isotropic uncertainty
+  proportional to the Chamfer distance of the aligned scans. Blind to
+  geometry (a corridor gets a round ellipse).
+* :func:`hessian_covariance` — ``s² H⁻¹`` with ``H = Σ wᵢ JᵢᵀJᵢ`` the
+  Gauss–Newton Hessian of the point-to-line cost and ``s²`` the weighted
+  residual variance (Bengtsson & Baerveldt, "Robot localization based on
+  scan-matching — estimating the covariance matrix for the IDC algorithm",
+  RAS 2003). Captures geometry: along a corridor ``H`` is nearly singular.
+* :func:`censi_covariance` — Censi's closed form ("An accurate closed-form
+  estimate of ICP's covariance", ICRA 2007):
+  ``Σ = H⁻¹ (∂²E/∂x∂z) Σ_z (∂²E/∂x∂z)ᵀ H⁻¹``. For the point-to-line
+  cost with fixed correspondences and point noise ``σ`` on both the query and
+  the reference points, ``∂²E/∂x∂zᵢ`` reduces to ``wᵢ Jᵢᵀ nᵢᵀ`` per point,
+  so ``Σ = H⁻¹ (Σ wᵢ² σᵢ² JᵢᵀJᵢ) H⁻¹`` with ``σᵢ²`` the sum of the pair's
+  two point variances; the residual-driven
+  term ``Σ wᵢ² rᵢ² JᵢᵀJᵢ`` (the sandwich estimator) is added so that a
+  poor fit (map change, misassociation) widens it.
+
+A singular direction of ``H`` (corridor, single wall) is given the variance
+``max_variance`` instead of infinity, so the covariance stays positive
+definite and the direction is down-weighted or gated downstream.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factorloc.errors import InputError
+from factorloc.registration.icp2d import IcpResult
+
+__all__ = ["bias_covariance", "censi_covariance", "chamfer_covariance", "hessian_covariance", "safe_inverse"]
+
+
+def safe_inverse(h: np.ndarray, max_variance: float, rel_eps: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-inverse of a symmetric PSD matrix and the projector onto its null space.
+
+    Eigenvalues below ``rel_eps·λ_max`` (or ``1/max_variance``) count as zero:
+    the pseudo-inverse ignores them, and the returned projector ``N = Σ v vᵀ``
+    over those eigenvectors lets the caller give them ``max_variance``.
+    """
+    h = np.asarray(h, dtype=np.float64)
+    h = 0.5 * (h + h.T)
+    lam, vec = np.linalg.eigh(h)
+    eps = max(rel_eps * max(float(lam[-1]), 0.0), 1.0 / max_variance)
+    good = lam > eps
+    inv = (vec[:, good] / lam[good]) @ vec[:, good].T
+    null = vec[:, ~good] @ vec[:, ~good].T
+    return inv, null
+
+
+def _finish(cov: np.ndarray, null: np.ndarray, max_variance: float) -> np.ndarray:
+    cov = 0.5 * (cov + cov.T) + max_variance * null
+    lam, vec = np.linalg.eigh(cov)
+    lam = np.clip(lam, 1e-12, max_variance)
+    return (vec * lam) @ vec.T
+
+
+def _check(result: IcpResult) -> None:
+    if not isinstance(result, IcpResult):
+        raise InputError(f"result must be an IcpResult, got {type(result).__name__}")
+
+
+def hessian_covariance(result: IcpResult, max_variance: float = 1e4) -> np.ndarray:
+    """``s² H⁺`` with ``s² = Σ wᵢ rᵢ² / (Σ wᵢ − 3)`` (m², m·rad, rad²); null directions get ``max_variance``."""
+    _check(result)
+    w, r = result.weights, result.residuals_m
+    if len(r) < 4:
+        return np.eye(3) * max_variance
+    s2 = float(np.sum(w * r * r) / max(np.sum(w) - 3.0, 1.0))
+    inv, null = safe_inverse(result.hessian, max_variance)
+    return _finish(s2 * inv, null, max_variance)
+
+
+def censi_covariance(result: IcpResult, max_variance: float = 1e4) -> np.ndarray:
+    """Censi's closed form for point-to-line ICP plus the residual sandwich term (see module docstring).
+
+    The pair noise variances ``σᵢ²`` are the result's ``variances_m2`` (the
+    range-dependent model of :class:`~factorloc.registration.icp2d.IcpParams`):
+    ``Σ = H⁺ (Σ wᵢ² (σᵢ² + rᵢ²) JᵢᵀJᵢ) H⁺``.
+    """
+    _check(result)
+    J, w, r = result.jacobians, result.weights, result.residuals_m
+    if len(r) < 4:
+        return np.eye(3) * max_variance
+    inv, null = safe_inverse(result.hessian, max_variance)
+    meat = (J * (w * w * (result.variances_m2 + r * r))[:, None]).T @ J
+    return _finish(inv @ meat @ inv, null, max_variance)
+
+
+def bias_covariance(result: IcpResult, sigma_bias_m: float, max_variance: float = 1e4) -> np.ndarray:
+    """A correlated (non-averaging) error of ``sigma_bias_m`` per point, spread by the geometry: ``σ_b² (H/Σwᵢ)⁺``.
+
+    Censi's formula assumes independent point errors, whose effect shrinks
+    as 1/N; errors shared by many points (a slightly wrong association on a
+    door frame, a wall that is not straight, timing) do not shrink. With
+    ``H/Σwᵢ`` the mean per-point information, this term gives each direction
+    the variance ``σ_b²`` divided by the fraction of points that constrain
+    it: round in a room, long along a corridor (where only door frames and
+    far walls constrain the motion).
+    """
+    _check(result)
+    w = result.weights
+    if len(w) < 4 or not np.sum(w) > 0.0:
+        return np.eye(3) * max_variance
+    inv, null = safe_inverse(result.hessian / float(np.sum(w)), max_variance / max(sigma_bias_m**2, 1e-300))
+    return _finish(sigma_bias_m**2 * inv, null, max_variance)
+
+
+def chamfer_covariance(result: IcpResult, scale: float = 1.0, mean_range_m: float = 3.0) -> np.ndarray:
+    """The patent's isotropic uncertainty: σ_xy = scale·chamfer, σ_θ = σ_xy / mean_range_m (diagonal)."""
+    _check(result)
+    s = max(scale * result.chamfer_m, 1e-4)
+    st = s / max(mean_range_m, 1e-3)
+    return np.diag([s * s, s * s, st * st])

@@ -1,0 +1,254 @@
+"""Global initialization: a two-level correlative scan matcher (Olson, "Real-time
+correlative scan matching", ICRA 2009).
+
+The reference scan is turned into likelihood fields ``F(c) = exp(−d(c)²/2σ²)``
+(``d`` = distance from cell ``c`` to the nearest reference point, by a
+Euclidean distance transform) at a coarse and a fine resolution. Every pose
+``(t, θ)`` of a grid — translations within ``radius_m`` of a centre, headings
+over the full circle (or a window) — is scored by the mean field value under
+the rotated and translated query points. Because translations lie on the
+field's own lattice, the cell of ``R_θ q + t`` is the cell of ``R_θ q`` plus
+an integer offset, so all translations of one heading are scored by one
+fancy-indexing gather (no interpolation, exact to the cell).
+
+Level 1 scores the whole window coarsely; its best poses after non-maximum
+suppression are re-scored on the fine field in a small neighbourhood. The
+caller refines the survivors with ICP and judges ambiguity
+(:mod:`factorloc.estimators.icp`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from factorloc.errors import InputError
+from factorloc.geometry import Pose2
+from factorloc.registration.scan2d import voxel_downsample_2d
+
+__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "search"]
+
+
+@dataclass(frozen=True)
+class GlobalSearchParams:
+    """Parameters of the correlative search (metres, radians).
+
+    Parameters
+    ----------
+    radius_m
+        Half-width of the square translation window around the centre.
+    max_range_m
+        Query and reference points farther than this from their sensor are
+        ignored by the search (long returns are sparse and noisy).
+    coarse_resolution_m, coarse_sigma_m, coarse_angle_step_rad
+        Level 1 lattice and field blur.
+    fine_resolution_m, fine_sigma_m, fine_angle_step_rad
+        Level 2 lattice and field blur; level 2 searches ± one coarse cell and
+        ± one coarse angle step around each level-1 survivor.
+    n_candidates
+        How many level-1 maxima survive non-maximum suppression.
+    separation_m, separation_rad
+        Two maxima closer than both are the same (suppression radius).
+    """
+
+    radius_m: float = 5.0
+    max_range_m: float = 15.0
+    coarse_resolution_m: float = 0.3
+    coarse_sigma_m: float = 0.3
+    coarse_angle_step_rad: float = math.radians(3.0)
+    fine_resolution_m: float = 0.05
+    fine_sigma_m: float = 0.08
+    fine_angle_step_rad: float = math.radians(0.5)
+    n_candidates: int = 8
+    separation_m: float = 0.6
+    separation_rad: float = math.radians(10.0)
+
+    def __post_init__(self) -> None:
+        for name in (
+            "radius_m",
+            "max_range_m",
+            "coarse_resolution_m",
+            "coarse_sigma_m",
+            "coarse_angle_step_rad",
+            "fine_resolution_m",
+            "fine_sigma_m",
+            "fine_angle_step_rad",
+            "separation_m",
+            "separation_rad",
+        ):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"GlobalSearchParams.{name} must be > 0, got {v!r}")
+        if self.n_candidates < 1:
+            raise InputError(f"GlobalSearchParams.n_candidates must be >= 1, got {self.n_candidates!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class LikelihoodField:
+    """A likelihood field on a square lattice: ``values[ix, iy]`` at ``origin_m + resolution_m·(ix, iy)`` (cell corner)."""
+
+    values: np.ndarray
+    origin_m: np.ndarray
+    resolution_m: float
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A pose of the query in the reference frame and its score (mean field value in [0, 1])."""
+
+    T_reference_query: Pose2
+    score: float
+
+
+def build_field(points_m: np.ndarray, resolution_m: float, sigma_m: float, margin_m: float) -> LikelihoodField:
+    """The likelihood field of reference points (N×2 m) with ``margin_m`` of zero-padded border.
+
+    ``F = exp(−d²/2σ²)`` with ``d`` the Euclidean distance transform of the occupancy grid.
+    """
+    pts = np.asarray(points_m, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) == 0:
+        raise InputError(f"build_field needs N×2 points with N >= 1, got shape {pts.shape}")
+    lo = pts.min(axis=0) - margin_m
+    hi = pts.max(axis=0) + margin_m
+    shape = tuple(int(v) for v in np.ceil((hi - lo) / resolution_m).astype(int) + 1)
+    occ = np.ones(shape, dtype=bool)
+    idx = np.floor((pts - lo) / resolution_m).astype(np.int64)
+    occ[idx[:, 0], idx[:, 1]] = False
+    d_cells = ndimage.distance_transform_edt(occ)
+    # distance from a cell to the nearest occupied cell, in metres
+    d = d_cells * resolution_m
+    values = np.exp(-0.5 * (d / sigma_m) ** 2).astype(np.float32)
+    values.setflags(write=False)
+    return LikelihoodField(values, lo, float(resolution_m))
+
+
+def _score_lattice(
+    field: LikelihoodField,
+    query_m: np.ndarray,
+    thetas: np.ndarray,
+    t_lo: np.ndarray,
+    n_steps: tuple[int, int],
+) -> np.ndarray:
+    """Scores (A, Kx, Ky) of poses ``(t_lo + res·(kx, ky), θ_a)``: mean field value under the query points."""
+    res = field.resolution_m
+    F = field.values
+    c, s = np.cos(thetas), np.sin(thetas)
+    # rotated query points: (A, N)
+    rx = c[:, None] * query_m[None, :, 0] - s[:, None] * query_m[None, :, 1]
+    ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
+    bx = np.floor((rx + t_lo[0] - field.origin_m[0]) / res + 1e-9).astype(np.int64)
+    by = np.floor((ry + t_lo[1] - field.origin_m[1]) / res + 1e-9).astype(np.int64)
+    kx = np.arange(n_steps[0])
+    ky = np.arange(n_steps[1])
+    ix = bx[:, :, None, None] + kx[None, None, :, None]
+    iy = by[:, :, None, None] + ky[None, None, None, :]
+    inside = (ix >= 0) & (ix < F.shape[0]) & (iy >= 0) & (iy < F.shape[1])
+    vals = np.where(inside, F[np.clip(ix, 0, F.shape[0] - 1), np.clip(iy, 0, F.shape[1] - 1)], 0.0)
+    return vals.mean(axis=1)
+
+
+def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
+    if half_width >= math.pi:
+        n = int(math.ceil(2.0 * math.pi / step))
+        return center + np.arange(n) * (2.0 * math.pi / n)
+    n = int(math.ceil(half_width / step))
+    return center + np.arange(-n, n + 1) * step
+
+
+def search(
+    reference_m: np.ndarray,
+    query_m: np.ndarray,
+    params: GlobalSearchParams = GlobalSearchParams(),
+    *,
+    center_m: tuple[float, float] = (0.0, 0.0),
+    heading_rad: float = 0.0,
+    heading_half_width_rad: float = math.pi,
+    fields: tuple[LikelihoodField, LikelihoodField] | None = None,
+) -> list[Candidate]:
+    """Candidate poses of the query scan in the reference frame, best first.
+
+    Parameters
+    ----------
+    reference_m, query_m
+        M×2 and N×2 points (metres), each in its own robot frame.
+    center_m, params.radius_m
+        The translation window ``center ± radius`` (reference frame).
+    heading_rad, heading_half_width_rad
+        The heading window; the default searches the full circle.
+    fields
+        Precomputed (coarse, fine) fields of the reference (see :func:`reference_fields`).
+
+    Returns
+    -------
+    list of Candidate
+        Up to ``params.n_candidates`` distinct poses, sorted by fine score.
+    """
+    ref = np.asarray(reference_m, dtype=np.float64)
+    qry = np.asarray(query_m, dtype=np.float64)
+    if qry.ndim != 2 or qry.shape[1] != 2 or len(qry) < 3:
+        raise InputError(f"query_m must be N×2 with N >= 3, got shape {qry.shape}")
+    qry = qry[np.hypot(qry[:, 0], qry[:, 1]) <= params.max_range_m]
+    if len(qry) < 3:
+        raise InputError(f"query scan has {len(qry)} point(s) within {params.max_range_m} m; need >= 3")
+    coarse, fine = reference_fields(ref, params) if fields is None else fields
+    p = params
+    center = np.asarray(center_m, dtype=np.float64)
+
+    # level 1: coarse lattice over the whole window
+    q1 = voxel_downsample_2d(qry, 0.5 * p.coarse_resolution_m)
+    r1 = p.coarse_resolution_m
+    n1 = int(math.ceil(p.radius_m / r1))
+    t_lo = center - n1 * r1
+    thetas = _angle_grid(heading_rad, heading_half_width_rad, p.coarse_angle_step_rad)
+    scores = np.concatenate(
+        [_score_lattice(coarse, q1, thetas[i : i + 16], t_lo, (2 * n1 + 1, 2 * n1 + 1)) for i in range(0, len(thetas), 16)]
+    )
+    order = np.argsort(scores, axis=None)[::-1]
+    picked: list[tuple[float, float, float, float]] = []
+    for flat in order:
+        a, kx, ky = np.unravel_index(flat, scores.shape)
+        x, y, th = t_lo[0] + kx * r1, t_lo[1] + ky * r1, float(thetas[a])
+        if any(
+            math.hypot(x - px, y - py) < p.separation_m and abs(math.remainder(th - pt, 2 * math.pi)) < p.separation_rad
+            for px, py, pt, _ in picked
+        ):
+            continue
+        picked.append((x, y, th, float(scores[a, kx, ky])))
+        if len(picked) >= p.n_candidates:
+            break
+
+    # level 2: fine lattice around each survivor
+    q2 = voxel_downsample_2d(qry, 0.5 * p.fine_resolution_m)
+    r2 = p.fine_resolution_m
+    n2 = int(math.ceil(r1 / r2))
+    out: list[Candidate] = []
+    for x, y, th, _ in picked:
+        th2 = _angle_grid(th, p.coarse_angle_step_rad, p.fine_angle_step_rad)
+        lo = np.array([x, y]) - n2 * r2
+        sc = _score_lattice(fine, q2, th2, lo, (2 * n2 + 1, 2 * n2 + 1))
+        a, kx, ky = np.unravel_index(int(np.argmax(sc)), sc.shape)
+        out.append(Candidate(Pose2(float(lo[0] + kx * r2), float(lo[1] + ky * r2), float(th2[a])), float(sc[a, kx, ky])))
+    out.sort(key=lambda cand: -cand.score)
+    return out
+
+
+def reference_fields(
+    reference_m: np.ndarray, params: GlobalSearchParams = GlobalSearchParams()
+) -> tuple[LikelihoodField, LikelihoodField]:
+    """The (coarse, fine) likelihood fields of a reference scan, points beyond ``max_range_m + radius_m`` dropped."""
+    ref = np.asarray(reference_m, dtype=np.float64)
+    if ref.ndim != 2 or ref.shape[1] != 2 or len(ref) < 3:
+        raise InputError(f"reference_m must be N×2 with N >= 3, got shape {ref.shape}")
+    keep = np.hypot(ref[:, 0], ref[:, 1]) <= params.max_range_m + params.radius_m
+    ref = ref[keep] if keep.sum() >= 3 else ref
+    coarse = build_field(ref, params.coarse_resolution_m, params.coarse_sigma_m, 3.0 * params.coarse_sigma_m)
+    fine = build_field(
+        voxel_downsample_2d(ref, 0.5 * params.fine_resolution_m),
+        params.fine_resolution_m,
+        params.fine_sigma_m,
+        3.0 * params.fine_sigma_m,
+    )
+    return coarse, fine

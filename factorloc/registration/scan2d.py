@@ -1,0 +1,208 @@
+"""2D scan preparation: the patent's horizontal cut of a 3D cloud, voxel
+downsampling, and line normals.
+
+All points are N×2 (or N×3 for clouds) metres in the robot frame
+(x forward, y left, z up from the floor).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from factorloc.errors import InputError
+from factorloc.types import PointCloud, Scan
+
+__all__ = [
+    "ScanExtraction",
+    "estimate_normals_2d",
+    "extract_scan",
+    "free_space_violation",
+    "limit_count",
+    "polar_profile",
+    "voxel_downsample_2d",
+]
+
+
+@dataclass(frozen=True)
+class ScanExtraction:
+    """How a 2D scan is cut out of a 3D cloud (patent: a horizontal slice, projected).
+
+    Parameters
+    ----------
+    min_height_m, max_height_m
+        The height band kept (z above the floor, metres). The defaults keep
+        walls and furniture sides and drop the floor (z ≈ 0) and the ceiling.
+    voxel_m
+        Side of the 2D voxel grid: one point (the centroid) per occupied cell.
+    max_points
+        Upper bound on the scan size after downsampling (uniform subsampling
+        with a fixed stride beyond it, deterministic).
+    max_range_m
+        Points farther than this from the sensor are dropped (0 = keep all).
+    """
+
+    min_height_m: float = 0.15
+    max_height_m: float = 1.8
+    voxel_m: float = 0.05
+    max_points: int = 1500
+    max_range_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.max_height_m > self.min_height_m:
+            raise InputError(f"ScanExtraction: max_height_m ({self.max_height_m}) must exceed min_height_m ({self.min_height_m})")
+        if self.voxel_m < 0.0:
+            raise InputError(f"ScanExtraction.voxel_m must be >= 0, got {self.voxel_m!r}")
+        if self.max_points < 3:
+            raise InputError(f"ScanExtraction.max_points must be >= 3, got {self.max_points!r}")
+        if self.max_range_m < 0.0:
+            raise InputError(f"ScanExtraction.max_range_m must be >= 0, got {self.max_range_m!r}")
+
+
+def voxel_downsample_2d(points_m: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Replace the points of each occupied ``voxel_m`` square cell by their centroid.
+
+    The output is ordered by cell (deterministic). ``voxel_m = 0`` returns a copy.
+    """
+    pts = np.asarray(points_m, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise InputError(f"points_m must be N×2, got shape {pts.shape}")
+    if voxel_m <= 0.0 or len(pts) == 0:
+        return pts.copy()
+    cells = np.floor(pts / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    sums = np.zeros((len(counts), 2))
+    np.add.at(sums, inverse, pts)
+    return sums / counts[:, None]
+
+
+def limit_count(points_m: np.ndarray, max_points: int) -> np.ndarray:
+    """Keep at most ``max_points`` points by a fixed-stride subsampling (deterministic)."""
+    pts = np.asarray(points_m)
+    if len(pts) <= max_points:
+        return pts
+    idx = np.round(np.linspace(0, len(pts) - 1, max_points)).astype(np.int64)
+    return pts[idx]
+
+
+def extract_scan(cloud: PointCloud, params: ScanExtraction = ScanExtraction()) -> Scan:
+    """Cut a 2D scan out of a 3D cloud: height band → projection → voxel grid → bounded count.
+
+    Missing returns (absent points) need no special handling: the cut only
+    keeps what was measured. Raises :class:`~factorloc.errors.InputError`
+    when fewer than 3 points remain in the band (no scan to match).
+    """
+    if not isinstance(cloud, PointCloud):
+        raise InputError(f"cloud must be a PointCloud, got {type(cloud).__name__}")
+    p = cloud.points_m
+    keep = (p[:, 2] >= params.min_height_m) & (p[:, 2] <= params.max_height_m)
+    xy = p[keep, :2]
+    if params.max_range_m > 0.0:
+        xy = xy[np.hypot(xy[:, 0], xy[:, 1]) <= params.max_range_m]
+    xy = voxel_downsample_2d(xy, params.voxel_m)
+    # angular order (as a laser would return them) so that the bounded subsampling is spread evenly
+    xy = xy[np.argsort(np.arctan2(xy[:, 1], xy[:, 0]), kind="stable")]
+    xy = limit_count(xy, params.max_points)
+    if len(xy) < 3:
+        raise InputError(
+            f"cloud has {len(xy)} point(s) in the height band [{params.min_height_m}, {params.max_height_m}] m; "
+            "need >= 3 for a scan"
+        )
+    return Scan(xy)
+
+
+def estimate_normals_2d(
+    points_m: np.ndarray,
+    k: int = 7,
+    max_radius_m: float = 0.5,
+    tree: cKDTree | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Line normals and their quality by PCA over the ``k`` nearest neighbours.
+
+    For each point, the covariance of its neighbours within ``max_radius_m``
+    is eigen-decomposed; the normal is the eigenvector of the smallest
+    eigenvalue, oriented towards the sensor (origin). The quality is
+    ``1 - λ_min/λ_max`` in [0, 1] (1 = perfectly straight); points with fewer
+    than 3 neighbours get quality 0 and a normal pointing at the sensor.
+
+    Returns
+    -------
+    normals : (N, 2) unit vectors
+    quality : (N,) in [0, 1]
+    """
+    pts = np.asarray(points_m, dtype=np.float64)
+    n = len(pts)
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    tree = cKDTree(pts) if tree is None else tree
+    kk = min(k, n)
+    d, idx = tree.query(pts, k=kk, distance_upper_bound=max_radius_m)
+    d = d.reshape(n, kk)
+    idx = idx.reshape(n, kk)
+    valid = np.isfinite(d)
+    idx_c = np.where(valid, idx, 0)
+    nb = pts[idx_c]  # n×k×2
+    w = valid.astype(np.float64)
+    cnt = w.sum(axis=1)
+    mean = (nb * w[..., None]).sum(axis=1) / np.maximum(cnt, 1.0)[:, None]
+    c = (nb - mean[:, None, :]) * w[..., None]
+    sxx = (c[..., 0] ** 2).sum(axis=1)
+    syy = (c[..., 1] ** 2).sum(axis=1)
+    sxy = (c[..., 0] * c[..., 1]).sum(axis=1)
+    # closed-form eigen-decomposition of the 2×2 symmetric [[sxx, sxy], [sxy, syy]]
+    tr = sxx + syy
+    det_term = np.sqrt(np.maximum((sxx - syy) ** 2 + 4.0 * sxy * sxy, 0.0))
+    lmax = 0.5 * (tr + det_term)
+    lmin = 0.5 * (tr - det_term)
+    # direction of the line (largest eigenvalue): angle 0.5·atan2(2 sxy, sxx - syy)
+    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+    normals = np.column_stack([-np.sin(phi), np.cos(phi)])
+    quality = np.where(lmax > 0.0, 1.0 - lmin / np.maximum(lmax, 1e-300), 0.0)
+    poor = cnt < 3
+    to_sensor = -pts / np.maximum(np.linalg.norm(pts, axis=1), 1e-12)[:, None]
+    normals[poor] = to_sensor[poor]
+    quality[poor] = 0.0
+    flip = np.einsum("ij,ij->i", normals, to_sensor) < 0.0
+    normals[flip] *= -1.0
+    return normals, np.clip(quality, 0.0, 1.0)
+
+
+def polar_profile(points_m: np.ndarray, n_bins: int = 720) -> np.ndarray:
+    """Free range per bearing bin seen from the sensor at the origin: (n_bins,) metres, NaN where no return.
+
+    Bin ``k`` covers bearings ``[-π + 2πk/n, -π + 2π(k+1)/n)``; its free range
+    is the *shortest* return in it (conservative: space closer than every
+    return of the bin was seen empty by the sensor).
+    """
+    pts = np.asarray(points_m, dtype=np.float64)
+    prof = np.full(n_bins, np.inf)
+    if len(pts):
+        b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64) % n_bins
+        np.minimum.at(prof, b, np.hypot(pts[:, 0], pts[:, 1]))
+    prof[~np.isfinite(prof)] = np.nan
+    return prof
+
+
+def free_space_violation(
+    profile_m: np.ndarray, points_m: np.ndarray, margin_m: float = 0.15, margin_ratio: float = 0.05
+) -> float:
+    """Fraction of ``points_m`` (N×2, in the profile's sensor frame) lying in space the sensor saw empty.
+
+    A point at range ρ in a bin of free range R violates when
+    ``ρ < R − max(margin_m, margin_ratio·R)``; points in bins without a return do not count.
+    Aligning a scan to a *wrong* but similar place (another office of the
+    same corridor) puts many of its points in the other scan's free space.
+    """
+    pts = np.asarray(points_m, dtype=np.float64)
+    if len(pts) == 0:
+        return 0.0
+    n = len(profile_m)
+    b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n).astype(np.int64) % n
+    free = profile_m[b]
+    rho = np.hypot(pts[:, 0], pts[:, 1])
+    with np.errstate(invalid="ignore"):
+        bad = rho < free - np.maximum(margin_m, margin_ratio * free)
+    return float(np.mean(bad & np.isfinite(free)))
