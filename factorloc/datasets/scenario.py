@@ -18,10 +18,11 @@ float64). Loading validates everything and raises
 
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import shutil
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -530,6 +531,16 @@ class _Ctx:
     def fail(self, fieldname: str, message: str) -> DatasetError:
         return DatasetError(f"{self.manifest}: field '{fieldname}': {message}")
 
+    @contextlib.contextmanager
+    def at(self, fieldname: str) -> Iterator[None]:
+        """Turn an :class:`InputError` raised by a constructor into a :class:`DatasetError` naming the field."""
+        try:
+            yield
+        except DatasetError:
+            raise
+        except InputError as exc:
+            raise self.fail(fieldname, str(exc)) from exc
+
     def get(self, d: Any, key: str, where: str, *, required: bool = True, default: Any = None) -> Any:
         if not isinstance(d, Mapping):
             raise self.fail(where, f"must be a mapping, got {type(d).__name__}")
@@ -554,7 +565,9 @@ class _Ctx:
         return v
 
     def pose(self, d: Any, where: str) -> Pose2:
-        return Pose2(self.number(d, "x_m", where), self.number(d, "y_m", where), self.number(d, "theta_rad", where))
+        x, y, t = self.number(d, "x_m", where), self.number(d, "y_m", where), self.number(d, "theta_rad", where)
+        with self.at(where):
+            return Pose2(x, y, t)
 
     def file(self, d: Any, where: str) -> Path:
         rel = self.get(d, "file", where)
@@ -576,7 +589,8 @@ class _Ctx:
         h = self.get(d, "height_px", where, required=False)
         if (w is not None and w != img.shape[1]) or (h is not None and h != img.shape[0]):
             raise DatasetError(
-                f"{self.manifest}: field '{where}': image {str(p)!r} is {img.shape[1]}×{img.shape[0]} px, the manifest says {w}×{h}"
+                f"{self.manifest}: field '{where}': wrong image size: {str(p)!r} is {img.shape[1]}×{img.shape[0]} px, "
+                f"the manifest says {w}×{h}"
             )
         return img
 
@@ -650,159 +664,106 @@ def load_scenario(path: str | Path) -> Scenario:
     if version != FORMAT_VERSION:
         raise ctx.fail("format_version", f"unknown version {version!r}; this factorloc reads version {FORMAT_VERSION}")
 
-    try:
-        world = None
-        wref = ctx.get(m, "world", "", required=False)
-        if wref is not None:
-            from factorloc.sim.world import load_world, world_by_name
+    world = None
+    wref = ctx.get(m, "world", "", required=False)
+    if wref is not None:
+        from factorloc.sim.world import load_world, world_by_name
 
-            if not isinstance(wref, str):
-                raise ctx.fail("world", f"must be a file name or a built-in world name, got {wref!r}")
-            wpath = root / wref
-            try:
-                world = load_world(wpath) if wpath.suffix.lower() in (".yaml", ".yml", ".json") else world_by_name(wref)
-            except InputError as exc:
-                raise ctx.fail("world", str(exc)) from exc
+        if not isinstance(wref, str):
+            raise ctx.fail("world", f"must be a file name or a built-in world name, got {wref!r}")
+        wpath = root / wref
+        with ctx.at("world"):
+            world = load_world(wpath) if wpath.suffix.lower() in (".yaml", ".yml", ".json") else world_by_name(wref)
 
-        references = []
-        refs = ctx.get(m, "references", "")
-        if not isinstance(refs, list) or not refs:
-            raise ctx.fail("references", f"must be a non-empty list, got {refs!r}")
-        for i, r in enumerate(refs):
-            where = f"references[{i}]"
-            rid = ctx.get(r, "id", where)
-            pano = cloud = scan = None
-            if ctx.get(r, "panorama", where, required=False) is not None:
-                pano = _read_panorama(ctx, r["panorama"], f"{where}.panorama")
-            if ctx.get(r, "cloud", where, required=False) is not None:
-                cloud = PointCloud(ctx.points(r["cloud"], f"{where}.cloud", 3))
-            if ctx.get(r, "scan", where, required=False) is not None:
-                scan = Scan(ctx.points(r["scan"], f"{where}.scan", 2))
-            T = ctx.pose(ctx.get(r, "T_world_reference", where), f"{where}.T_world_reference")
-            ref = _wrap(
-                ctx,
-                where,
-                lambda: Reference(pano, cloud, scan, T, str(ctx.get(r, "name", where, required=False, default="reference"))),
-            )
-            references.append(
-                _wrap(
-                    ctx,
-                    where,
-                    lambda: ScenarioReference(rid, ref, ctx.get(r, "metadata", where, required=False, default={}) or {}),
-                )
-            )
-
-        queries = []
-        qs = ctx.get(m, "queries", "")
-        if not isinstance(qs, list):
-            raise ctx.fail("queries", f"must be a list, got {type(qs).__name__}")
-        for i, e in enumerate(qs):
-            where = f"queries[{i}]"
-            qid = ctx.get(e, "id", where)
-            images = []
-            ims = ctx.get(e, "images", where, required=False, default=[]) or []
-            if not isinstance(ims, list):
-                raise ctx.fail(f"{where}.images", f"must be a list, got {type(ims).__name__}")
-            for j, im in enumerate(ims):
-                w2 = f"{where}.images[{j}]"
-                img = ctx.image(im, w2)
-                cx = ctx.number(im, "cx_px", w2, required=False, default=None)
-                images.append(
-                    _wrap(
-                        ctx,
-                        w2,
-                        lambda img=img, im=im, w2=w2, cx=cx: CameraImage(
-                            img,
-                            ctx.number(im, "hfov_rad", w2, positive=True),
-                            ctx.number(im, "yaw_in_robot_rad", w2, required=False, default=0.0),
-                            ctx.number(im, "pitch_rad", w2, required=False, default=0.0),
-                            cx,
-                        ),
-                    )
-                )
-            odo = None
-            o = ctx.get(e, "odometry", where, required=False)
-            if o is not None:
-                wo = f"{where}.odometry"
-                odo = _wrap(
-                    ctx,
-                    wo,
-                    lambda o=o, wo=wo: Odometry(
-                        ctx.pose(o, wo),
-                        ctx.number(o, "sigma_x_m", wo, positive=True),
-                        ctx.number(o, "sigma_y_m", wo, positive=True),
-                        ctx.number(o, "sigma_theta_rad", wo, positive=True),
-                    ),
-                )
-            pano = cloud = scan = None
-            if ctx.get(e, "panorama", where, required=False) is not None:
-                pano = _read_panorama(ctx, e["panorama"], f"{where}.panorama")
-            if ctx.get(e, "cloud", where, required=False) is not None:
-                cloud = PointCloud(ctx.points(e["cloud"], f"{where}.cloud", 3))
-            if ctx.get(e, "scan", where, required=False) is not None:
-                scan = Scan(ctx.points(e["scan"], f"{where}.scan", 2))
-            query = _wrap(ctx, where, lambda: Query(tuple(images), pano, cloud, scan, odo, str(qid)))
-            t = ctx.get(e, "truth", where, required=False)
-            truth = None if t is None else ctx.pose(t, f"{where}.truth")
-            faults = ctx.get(e, "faults", where, required=False, default=[]) or []
-            if not isinstance(faults, list):
-                raise ctx.fail(f"{where}.faults", f"must be a list of tags, got {faults!r}")
-            dist = ctx.number(e, "distance_from_reference_m", where, required=False, default=None)
-            queries.append(
-                _wrap(
-                    ctx,
-                    where,
-                    lambda: ScenarioQuery(
-                        query,
-                        ctx.number(e, "timestamp_s", where, required=False, default=0.0),
-                        truth,
-                        tuple(faults),
-                        str(ctx.get(e, "reference", where, required=False, default=references[0].id)),
-                        dist,
-                        ctx.get(e, "metadata", where, required=False, default={}) or {},
-                    ),
-                )
-            )
-        seed = ctx.get(m, "seed", "", required=False)
-        return _wrap(
-            ctx,
-            "",
-            lambda: Scenario(
-                name=str(ctx.get(m, "name", "")),
-                references=tuple(references),
-                queries=tuple(queries),
-                world=world,
-                seed=seed,
-                description=str(ctx.get(m, "description", "", required=False, default="") or ""),
-                metadata=ctx.get(m, "metadata", "", required=False, default={}) or {},
-            ),
+    refs = ctx.get(m, "references", "")
+    if not isinstance(refs, list) or not refs:
+        raise ctx.fail("references", f"must be a non-empty list, got {refs!r}")
+    references = [_load_reference(ctx, r, f"references[{i}]") for i, r in enumerate(refs)]
+    qs = ctx.get(m, "queries", "")
+    if not isinstance(qs, list):
+        raise ctx.fail("queries", f"must be a list, got {type(qs).__name__}")
+    queries = [_load_query(ctx, e, f"queries[{i}]", references[0].id) for i, e in enumerate(qs)]
+    with ctx.at("(scenario)"):
+        return Scenario(
+            name=str(ctx.get(m, "name", "")),
+            references=tuple(references),
+            queries=tuple(queries),
+            world=world,
+            seed=ctx.get(m, "seed", "", required=False),
+            description=str(ctx.get(m, "description", "", required=False, default="") or ""),
+            metadata=ctx.get(m, "metadata", "", required=False, default={}) or {},
         )
-    except DatasetError:
-        raise
-    except InputError as exc:  # a Pose2 with NaN, …: name the manifest
-        raise DatasetError(f"{ctx.manifest}: {exc}") from exc
+
+
+def _optional_sensors(ctx: _Ctx, d: Any, where: str) -> tuple[Panorama | None, PointCloud | None, Scan | None]:
+    pano = cloud = scan = None
+    if ctx.get(d, "panorama", where, required=False) is not None:
+        pano = _read_panorama(ctx, d["panorama"], f"{where}.panorama")
+    if ctx.get(d, "cloud", where, required=False) is not None:
+        pts = ctx.points(d["cloud"], f"{where}.cloud", 3)
+        with ctx.at(f"{where}.cloud"):
+            cloud = PointCloud(pts)
+    if ctx.get(d, "scan", where, required=False) is not None:
+        pts = ctx.points(d["scan"], f"{where}.scan", 2)
+        with ctx.at(f"{where}.scan"):
+            scan = Scan(pts)
+    return pano, cloud, scan
+
+
+def _load_reference(ctx: _Ctx, r: Any, where: str) -> ScenarioReference:
+    rid = ctx.get(r, "id", where)
+    pano, cloud, scan = _optional_sensors(ctx, r, where)
+    T = ctx.pose(ctx.get(r, "T_world_reference", where), f"{where}.T_world_reference")
+    name = str(ctx.get(r, "name", where, required=False, default="reference"))
+    with ctx.at(where):
+        ref = Reference(pano, cloud, scan, T, name)
+        return ScenarioReference(rid, ref, ctx.get(r, "metadata", where, required=False, default={}) or {})
+
+
+def _load_query(ctx: _Ctx, e: Any, where: str, default_reference: str) -> ScenarioQuery:
+    qid = ctx.get(e, "id", where)
+    images = []
+    ims = ctx.get(e, "images", where, required=False, default=[]) or []
+    if not isinstance(ims, list):
+        raise ctx.fail(f"{where}.images", f"must be a list, got {type(ims).__name__}")
+    for j, im in enumerate(ims):
+        w2 = f"{where}.images[{j}]"
+        img = ctx.image(im, w2)
+        hfov = ctx.number(im, "hfov_rad", w2, positive=True)
+        yaw = ctx.number(im, "yaw_in_robot_rad", w2, required=False, default=0.0)
+        pitch = ctx.number(im, "pitch_rad", w2, required=False, default=0.0)
+        cx = ctx.number(im, "cx_px", w2, required=False, default=None)
+        with ctx.at(w2):
+            images.append(CameraImage(img, hfov, yaw, pitch, cx))
+    odo = None
+    o = ctx.get(e, "odometry", where, required=False)
+    if o is not None:
+        wo = f"{where}.odometry"
+        pose = ctx.pose(o, wo)
+        sig = [ctx.number(o, k, wo, positive=True) for k in ("sigma_x_m", "sigma_y_m", "sigma_theta_rad")]
+        with ctx.at(wo):
+            odo = Odometry(pose, *sig)
+    pano, cloud, scan = _optional_sensors(ctx, e, where)
+    t = ctx.get(e, "truth", where, required=False)
+    truth = None if t is None else ctx.pose(t, f"{where}.truth")
+    faults = ctx.get(e, "faults", where, required=False, default=[]) or []
+    if not isinstance(faults, list):
+        raise ctx.fail(f"{where}.faults", f"must be a list of tags, got {faults!r}")
+    dist = ctx.number(e, "distance_from_reference_m", where, required=False, default=None)
+    timestamp = ctx.number(e, "timestamp_s", where, required=False, default=0.0)
+    ref_id = str(ctx.get(e, "reference", where, required=False, default=default_reference))
+    metadata = ctx.get(e, "metadata", where, required=False, default={}) or {}
+    with ctx.at(where):
+        query = Query(tuple(images), pano, cloud, scan, odo, str(qid))
+        return ScenarioQuery(query, timestamp, truth, tuple(faults), ref_id, dist, metadata)
 
 
 def _read_panorama(ctx: _Ctx, d: Any, where: str) -> Panorama:
     img = ctx.image(d, where)
-    return _wrap(
-        ctx,
-        where,
-        lambda: Panorama(
-            img,
-            ctx.number(d, "fov_v_rad", where, positive=True),
-            ctx.number(d, "azimuth_col0_rad", where, required=False, default=math.pi),
-        ),
-    )
-
-
-def _wrap(ctx: _Ctx, where: str, build: Any) -> Any:
-    try:
-        return build()
-    except DatasetError:
-        raise
-    except InputError as exc:
-        raise ctx.fail(where or "(scenario)", str(exc)) from exc
+    fov = ctx.number(d, "fov_v_rad", where, positive=True)
+    az0 = ctx.number(d, "azimuth_col0_rad", where, required=False, default=math.pi)
+    with ctx.at(where):
+        return Panorama(img, fov, az0)
 
 
 def scenario_files(path: str | Path) -> Sequence[Path]:
