@@ -126,10 +126,10 @@ def plot_estimates_on_axes(
 
     A grey line joins each estimate to its truth; queries whose position is
     under-determined show their truth only (hollow marker). The reference
-    pose is a black star. ``ellipse_scale`` magnifies the ellipses (cm-sized
+    poses are black stars. ``ellipse_scale`` magnifies the ellipses (cm-sized
     ellipses are invisible on a 10 m plan); the legend states it.
     """
-    ref = report.run.dataset.reference.T_world_reference
+    refs = [r.T_world_reference for r in report.run.dataset.references.values()]
     tx, ty, ex, ey, ux, uy = [], [], [], [], [], []
     for r in report.results:
         det = r.determined
@@ -153,7 +153,7 @@ def plot_estimates_on_axes(
     if ux:
         ax.scatter(ux, uy, s=18, facecolors="none", edgecolors=TRUTH_COLOR, label="true pose (position undetermined)", zorder=5)
     ax.scatter(ex, ey, s=18, marker="x", color=ESTIMATE_COLOR, lw=1.2, label="estimate", zorder=6)
-    ax.scatter([ref.x], [ref.y], s=140, marker="*", color="black", label="reference", zorder=7)
+    ax.scatter([p.x for p in refs], [p.y for p in refs], s=140, marker="*", color="black", label="reference", zorder=7)
     scale = "" if ellipse_scale == 1.0 else f" ×{ellipse_scale:g}"
     ax.plot([], [], color=ESTIMATE_COLOR, lw=1.0, label=f"{100 * confidence:.0f} % ellipse{scale}")
     ax.set_aspect("equal")

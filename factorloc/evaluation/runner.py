@@ -36,8 +36,9 @@ import resource
 import sys
 import time
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -72,6 +73,9 @@ __all__ = [
 #: Version of the JSON written by :meth:`EvaluationReport.to_json_dict`.
 SCHEMA_VERSION = 1
 
+#: The id under which a single reference is stored.
+DEFAULT_REFERENCE = "ref0"
+
 #: The tag under ``by_fault`` that collects queries without any fault tag.
 NO_FAULT = "none"
 
@@ -93,11 +97,18 @@ class Case:
         The true ``T_world_robot`` (None: the query is run and timed but not scored).
     faults
         Fault tags of the query (``"kidnapped"``, ``"occlusion"``, …; empty when clean).
+    reference_id
+        The reference (of the :class:`EvaluationSet`) it is localized against.
+    distance_from_reference_m
+        Distance of the true pose from that reference's pose (m); computed
+        from ``truth`` when None.
     """
 
     query: Query
     truth: Pose2 | None = None
     faults: tuple[str, ...] = ()
+    reference_id: str = DEFAULT_REFERENCE
+    distance_from_reference_m: float | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.query, Query):
@@ -109,54 +120,68 @@ class Case:
             if not isinstance(f, str) or not f:
                 raise InputError(f"Case.faults must be non-empty strings, got {f!r} in query {self.query.id!r}")
         object.__setattr__(self, "faults", faults)
+        if not isinstance(self.reference_id, str) or not self.reference_id:
+            raise InputError(f"Case.reference_id must be a non-empty string, got {self.reference_id!r}")
 
 
 @dataclass(frozen=True, eq=False)
 class EvaluationSet:
-    """A reference and the cases to localize against it, in scenario (time) order.
+    """References and the cases to localize against them, in scenario (time) order.
 
     :func:`evaluation_set` builds one from a :class:`factorloc.datasets.Scenario`;
-    tests and notebooks may build one directly. ``world`` (optional) is the
-    floor plan the figures draw.
+    tests and notebooks may build one directly. ``references`` maps ids to
+    references (a single :class:`~factorloc.Reference` is stored under
+    ``"ref0"``); ``world`` (optional) is the floor plan the figures draw.
     """
 
-    reference: Reference
+    references: Mapping[str, Reference] | Reference
     cases: tuple[Case, ...]
     name: str = "scenario"
     world: World | None = None
 
     def __post_init__(self) -> None:
-        if not isinstance(self.reference, Reference):
-            raise InputError(f"EvaluationSet.reference must be a factorloc.Reference, got {type(self.reference).__name__}")
+        refs = {DEFAULT_REFERENCE: self.references} if isinstance(self.references, Reference) else dict(self.references)
+        if not refs:
+            raise InputError(f"EvaluationSet({self.name}).references is empty")
+        for k, r in refs.items():
+            if not isinstance(r, Reference):
+                raise InputError(f"EvaluationSet.references[{k!r}] must be a factorloc.Reference, got {type(r).__name__}")
+        object.__setattr__(self, "references", MappingProxyType(refs))
         cases = tuple(self.cases)
         if not cases:
             raise InputError(f"EvaluationSet({self.name}).cases is empty: nothing to evaluate")
         for i, c in enumerate(cases):
             if not isinstance(c, Case):
                 raise InputError(f"EvaluationSet.cases[{i}] must be a Case, got {type(c).__name__}")
+            if c.reference_id not in refs:
+                raise InputError(
+                    f"EvaluationSet.cases[{i}] ({c.query.id}) names reference {c.reference_id!r}, not one of {sorted(refs)}"
+                )
         object.__setattr__(self, "cases", cases)
+
+    def reference_of(self, case: Case) -> Reference:
+        """The reference ``case`` is localized against."""
+        return self.references[case.reference_id]
 
 
 def evaluation_set(scenario: Any) -> EvaluationSet:
     """The :class:`EvaluationSet` of ``scenario`` (an ``EvaluationSet`` is returned as is).
 
-    Accepts a :class:`factorloc.datasets.scenario.Scenario`: its reference, its
-    queries with their ground truth and fault tags, and its world when known.
+    Accepts a :class:`factorloc.datasets.Scenario`: its references, its
+    queries (in scenario order) with their ground truth, fault tags and
+    reference, and its world when known.
     """
     if isinstance(scenario, EvaluationSet):
         return scenario
-    try:
-        from factorloc.datasets.scenario import Scenario
-    except ImportError:  # pragma: no cover - the format module not installed
-        Scenario = ()  # noqa: N806
+    from factorloc.datasets.scenario import Scenario
+
     if not isinstance(scenario, Scenario):
         raise InputError(f"scenario must be a factorloc.datasets.Scenario or an EvaluationSet, got {type(scenario).__name__}")
-    return _from_scenario(scenario)
-
-
-def _from_scenario(scenario: Any) -> EvaluationSet:
-    cases = tuple(Case(q.query, q.truth, tuple(q.faults)) for q in scenario.queries)
-    return EvaluationSet(scenario.reference, cases, name=str(scenario.name), world=scenario.world)
+    cases = tuple(
+        Case(q.query, q.truth, tuple(q.faults), q.reference_id, q.distance_from_reference_m) for q in scenario.queries
+    )
+    refs = {r.id: r.reference for r in scenario.references}
+    return EvaluationSet(refs, cases, name=scenario.name, world=scenario.world)
 
 
 # --------------------------------------------------------------------------
@@ -184,6 +209,8 @@ class HierarchyRun:
 
     ``peak_memory_mb`` is the process's peak resident set size after the run
     (``getrusage(RUSAGE_SELF).ru_maxrss``): it includes the loaded scenario.
+    ``prepare_seconds`` is each step's reference-only work, summed over the
+    references used.
     """
 
     dataset: EvaluationSet
@@ -228,10 +255,16 @@ def run_hierarchy(
     cfg = config or Config()
     if not isinstance(cfg, Config):
         raise InputError(f"config must be a factorloc.Config or None, got {type(cfg).__name__}")
-    localizer = Localizer(data.reference, cfg, steps=steps)
+    localizers: dict[str, Localizer] = {}
+    prepare_seconds: dict[str, float] = {}
     runs = []
     total = len(data.cases)
     for i, case in enumerate(data.cases):
+        localizer = localizers.get(case.reference_id)
+        if localizer is None:  # reference-only work, once per reference used
+            localizer = localizers[case.reference_id] = Localizer(data.reference_of(case), cfg, steps=steps)
+            for name, sec in localizer.prepare_seconds.items():
+                prepare_seconds[name] = prepare_seconds.get(name, 0.0) + sec
         t0 = time.perf_counter()
         loc = localizer.localize(case.query, seeded=seeded)
         dt = time.perf_counter() - t0
@@ -243,9 +276,9 @@ def run_hierarchy(
         cfg,
         bool(seeded),
         tuple(runs),
-        dict(localizer.prepare_seconds),
+        prepare_seconds,
         peak_memory_mb(),
-        tuple(s.name for s in localizer.steps),
+        tuple(s.name for s in next(iter(localizers.values())).steps),
     )
 
 
@@ -307,6 +340,8 @@ def _merge(original: tuple[StepReport, ...], refused: Localization) -> tuple[Ste
 
 
 def _distance(case: Case, reference: Reference) -> float:
+    if case.distance_from_reference_m is not None:
+        return float(case.distance_from_reference_m)
     if case.truth is None:
         return math.nan
     return float(math.hypot(case.truth.x - reference.T_world_reference.x, case.truth.y - reference.T_world_reference.y))
@@ -314,7 +349,6 @@ def _distance(case: Case, reference: Reference) -> float:
 
 def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryResult]:
     out = []
-    ref = run.dataset.reference
     for qr in run.runs:
         estimates = [r.estimate for r in qr.reports if r.estimate is not None]
         t0 = time.perf_counter()
@@ -331,7 +365,7 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
                 _merge(qr.reports, loc),
                 qr.steps_seconds + dt,
                 dt,
-                _distance(qr.case, ref),
+                _distance(qr.case, run.dataset.reference_of(qr.case)),
             )
         )
     return out
@@ -339,7 +373,6 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
 
 def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[QueryResult]:
     out = []
-    ref = run.dataset.reference
     strategy.reset()
     for qr in run.runs:
         t0 = time.perf_counter()
@@ -364,7 +397,7 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
                 qr.reports,
                 qr.steps_seconds + dt,
                 dt,
-                _distance(qr.case, ref),
+                _distance(qr.case, run.dataset.reference_of(qr.case)),
             )
         )
     return out

@@ -209,3 +209,45 @@ def test_rejects_what_is_not_a_strategy_or_a_scenario() -> None:
         evaluate([1, 2, 3])
     with pytest.raises(InputError, match="Case.truth"):
         Case(Query(id="a"), truth=(1.0, 2.0, 0.0))  # type: ignore[arg-type]
+
+
+class ReferenceEcho:
+    """Returns the truth and records, in its diagnostics, the reference it was prepared with."""
+
+    name = "echo"
+
+    def __init__(self, truth: dict[str, Pose2]) -> None:
+        self.truth = truth
+        self.prepared: list[str] = []
+
+    def prepare(self, reference: Reference) -> Any:
+        self.prepared.append(reference.name)
+        return reference.name
+
+    def estimate(self, prepared: Any, query: Query, hypotheses: Hypotheses) -> Estimate | None:
+        return Estimate.pose(self.name, self.truth[query.id], 0.01, 0.01, 0.01, diagnostics={"reference": prepared})
+
+
+def test_a_scenario_with_two_references_localizes_each_query_against_its_own() -> None:
+    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference
+
+    scan = Scan(np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]))
+    refs = (
+        ScenarioReference("hall", Reference(scan=scan, T_world_reference=Pose2(0.0, 0.0, 0.0), name="hall")),
+        ScenarioReference("kitchen", Reference(scan=scan, T_world_reference=Pose2(6.0, 0.0, 0.0), name="kitchen")),
+    )
+    truth = {f"q{i}": Pose2(1.0 + i, 0.0, 0.0) for i in range(4)}
+    queries = tuple(
+        ScenarioQuery(Query(id=k), timestamp_s=float(i), truth=v, faults=("blur",) if i == 3 else (),
+                      reference_id="hall" if i < 2 else "kitchen", distance_from_reference_m=None if i else 7.5)
+        for i, (k, v) in enumerate(truth.items())
+    )
+    step = ReferenceEcho(truth)
+    report = evaluate(Scenario("two-rooms", refs, queries), ProductFusion(), steps=[step])
+    assert step.prepared == ["hall", "kitchen"]  # each reference prepared once
+    assert [r.reports[0].estimate.diagnostics["reference"] for r in report.results] == ["hall", "hall", "kitchen", "kitchen"]
+    # the scenario's own distance wins; otherwise it is measured from the query's reference
+    assert [r.distance_to_reference_m for r in report.results] == pytest.approx([7.5, 2.0, 3.0, 2.0])
+    out = report.to_json_dict()
+    assert out["scenario"] == "two-rooms" and out["by_fault"]["blur"]["queries"] == 1
+    assert out["position_rmse_m"] == pytest.approx(0.0, abs=1e-12)
