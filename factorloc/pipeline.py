@@ -23,6 +23,7 @@ from factorloc.errors import FactorlocError, InputError
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.estimators.compass import CompassStep
 from factorloc.estimators.correlation import CorrelationStep
+from factorloc.estimators.icp import IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.fusion.base import FusionStrategy
 from factorloc.fusion.graph import GraphFusion
@@ -40,6 +41,7 @@ def default_steps(config: Config) -> list[Step]:
         (config.odometry.enabled, OdometryStep(config.odometry)),
         (config.compass.enabled, CompassStep(config.compass)),
         (config.correlation.enabled, CorrelationStep(config.correlation)),
+        (config.icp.enabled, IcpStep(config.icp)),
     ]
     return [step for enabled, step in steps if enabled]
 
