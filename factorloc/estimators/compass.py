@@ -79,6 +79,9 @@ class CompassConfig:
         parallax-free world bearings (:mod:`factorloc.vision.depth`).
     camera_height_m
         Height of the reference panorama's camera above the floor (m), to read the reference cloud.
+    depth_sigma_rad_per_m
+        Model error of the parallax correction (coarse depth map) per metre between the
+        hypothesised position and the reference, added to σ.
     """
 
     enabled: bool = True
@@ -98,6 +101,7 @@ class CompassConfig:
     max_effective_inliers: int = 30
     parallax_correction: bool = True
     camera_height_m: float = 1.0
+    depth_sigma_rad_per_m: float = math.radians(0.15)
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -292,7 +296,10 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     resid = np.asarray(wrap_angle(votes[inliers] - theta))
     spread = float(np.sqrt(np.mean(resid**2))) if n_in else math.pi
     n_eff = min(n_in, config.max_effective_inliers)
-    sigma_par = parallax_sigma(position[1], ranges[ri[inliers]]) if position is not None and n_in else 0.0
+    sigma_par = 0.0
+    if position is not None and n_in:
+        displacement = float(np.hypot(*(np.asarray(position[0]) - prepared.depth.T_world_reference.translation)))
+        sigma_par = math.hypot(parallax_sigma(position[1], ranges[ri[inliers]]), config.depth_sigma_rad_per_m * displacement)
     sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     ambiguity = runner_up / n_in if n_in else 1.0

@@ -51,6 +51,7 @@ from factorloc.types import Estimate, Query, Reference
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
+from factorloc.vision.synth import synthesize
 
 log = logging.getLogger(__name__)
 
@@ -77,6 +78,12 @@ class CorrelationConfig:
         Unreliable above this σθ3.
     sigma_gain
         Multiplies the curvature-based σ (calibrated so that errors are ≈ σ).
+    warp_sigma_rad_per_m
+        Model error of the parallax-removing warp per metre between the hypothesised
+        position and the reference (coarse depth, non-vertical surfaces), added to σ.
+    seed_consistency_n_sigma
+        Unreliable when θ3 is further than this many combined σ from the seed heading
+        (a second alignment inside the window beat the true one).
     vertical_search_frac
         Vertical offsets searched around the horizon alignment, as a fraction of the panorama height.
     parallax_correction
@@ -95,6 +102,8 @@ class CorrelationConfig:
     min_window_rad: float = math.radians(5.0)
     max_sigma_rad: float = math.radians(2.0)
     sigma_gain: float = 1.0
+    warp_sigma_rad_per_m: float = math.radians(0.25)
+    seed_consistency_n_sigma: float = 3.0
     vertical_search_frac: float = 0.1
     parallax_correction: bool = True
     camera_height_m: float = 1.0
@@ -140,6 +149,14 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
         raise InputError(f"correlation needs Reference.panorama, reference {reference.name!r} has none")
     grid = Grid.of(reference.panorama)
     gray = to_gray(reference.panorama.image_bgr)
+    problem = texture_problem(gray)
+    depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
+    pyr = _pyramid(gray, grid, config)
+    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], reference.T_world_reference.theta, problem, config, depth)
+
+
+def _pyramid(gray: np.ndarray, grid: Grid, config: CorrelationConfig) -> dict[str, tuple]:
+    """Levels (grey panorama downscaled by ratioᵏ, k = 0 … n) and their actual (width, height) ratios."""
     levels = [gray]
     scales = [(1.0, 1.0)]
     for k in range(1, config.pyramid_steps + 1):
@@ -147,37 +164,7 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
         w, h = max(8, int(round(grid.width_px * r))), max(8, int(round(grid.height_px * r)))
         levels.append(cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA))
         scales.append((w / grid.width_px, h / grid.height_px))
-    problem = texture_problem(gray)
-    depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
-    return PreparedCorrelation(grid, tuple(levels), tuple(scales), reference.T_world_reference.theta, problem, config, depth)
-
-
-def _view_azimuths(strip: Strip, n: int = 9) -> np.ndarray:
-    """``n`` robot-frame azimuths across a view (its middle 80 %)."""
-    j = np.linspace(0.1, 0.9, n) * (strip.width_px - 1)
-    return np.asarray(strip.azimuth_of_column(j), dtype=np.float64)
-
-
-def _corrected(depth: DepthMap, strip: Strip, theta_unc: float, position: tuple[float, float]) -> tuple[float, float]:
-    """Parallax-free relative heading of a view matched at the uncorrected relative heading, and the median range (m).
-
-    The view's directions ``a_j`` matched reference azimuths ``θ_unc + a_j``; the points there, seen from
-    ``position``, give world headings ``β_j − a_j`` whose circular median-like mean is returned (relative
-    to the reference's heading).
-    """
-    a = _view_azimuths(strip)
-    world, ranges = depth.world_headings(np.asarray(wrap_angle(theta_unc + a)), a, position)
-    rel = np.asarray(wrap_angle(world - depth.T_world_reference.theta - theta_unc))
-    return float(wrap_angle(theta_unc + float(np.median(rel)))), float(np.median(ranges))
-
-
-def _uncorrected(depth: DepthMap, strip: Strip, theta_corr: float, position: tuple[float, float]) -> float:
-    """Inverse of :func:`_corrected` by fixed-point iteration: where the view matches if the heading is ``theta_corr``."""
-    theta = theta_corr
-    for _ in range(6):
-        got, _ = _corrected(depth, strip, theta, position)
-        theta = float(wrap_angle(theta + wrap_angle(theta_corr - got)))
-    return theta
+    return {"levels": tuple(levels), "scales": tuple(scales)}
 
 
 @dataclass
@@ -376,10 +363,14 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     if not strips:
         return _unreliable(prepared, theta_fallback, "no usable query view: " + "; ".join(dropped), **base)
     position = position_seed(hypotheses) if prepared.depth is not None else None
-    offsets = None
-    if position is not None and seed is not None:
-        offsets = [float(wrap_angle(seed[0] - _uncorrected(prepared.depth, st, seed[0], position[0]))) for st in strips]
+    magnification = None
+    if position is not None:
+        # remove the parallax: correlate with the reference re-rendered from the hypothesised position
+        p_ref = prepared.depth.T_world_reference.inverse().transform_points(np.array([position[0]]))[0]
+        synth, range_m, magnification = synthesize(prepared.levels[0], prepared.grid, prepared.depth, (p_ref[0], p_ref[1]))
+        prepared = dataclasses.replace(prepared, **_pyramid(synth, prepared.grid, config))
     base["parallax_corrected"] = position is not None
+    offsets = None
     n = config.pyramid_steps
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
     curves = [
@@ -435,21 +426,23 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     else:
         sigma = math.pi
     sigma_par = 0.0
+    scale_residual = scale
     if position is not None:
-        # exact parallax correction through the first view (the curve axis is its, linearised near the seed)
-        off0 = 0.0 if offsets is None else offsets[0]
-        theta_unc = float(wrap_angle(theta - off0))
-        theta_parallax_free, range_m = _corrected(prepared.depth, strips[0], theta_unc, position[0])
-        base["parallax_rad"] = float(wrap_angle(theta_parallax_free - theta_unc))
-        theta = theta_parallax_free
-        sigma_par = parallax_sigma(position[1], np.array([range_m]))
+        displacement = float(np.hypot(*(np.asarray(position[0]) - prepared.depth.T_world_reference.translation)))
+        sigma = math.hypot(sigma, config.warp_sigma_rad_per_m * displacement)
+        # the columns the first view covers at θ: their range from the query and magnification vs the reference
+        a = np.asarray(strips[0].azimuth_of_column(np.linspace(0.1, 0.9, 9) * (strips[0].width_px - 1)))
+        cols = np.mod(np.rint(prepared.grid.column_of_azimuth(theta + a)).astype(int), prepared.grid.width_px)
+        sigma_par = parallax_sigma(position[1], range_m[cols])
         sigma = math.hypot(sigma, sigma_par)
+        scale = scale_residual * float(np.median(magnification[cols]))
     diag = dict(
         base,
         peak=peak,
         second_peak=second,
         level=best.m,
         scale=scale,
+        scale_residual=scale_residual,
         curvature_per_px2=kappa,
         pixel_rad=best.pixel_rad,
         level_peaks={str(m): v for m, v in sorted(values.items())},
@@ -464,6 +457,10 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         problems.append(f"ambiguous: secondary peak {second:.3f} within {config.ambiguity_margin:.3f} of {peak:.3f}")
     if at_edge:
         problems.append("peak on the edge of the seeded window")
+    if h is not None:
+        gap = abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0])))
+        if gap > config.seed_consistency_n_sigma * math.hypot(sigma, h[1]):
+            problems.append(f"{math.degrees(gap):.2f}° from the {h[2]} seed (> {config.seed_consistency_n_sigma:.0f} σ)")
     if sigma > config.max_sigma_rad:
         problems.append(f"σθ3 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
     reliable = not problems

@@ -56,6 +56,10 @@ class Grid:
         """Azimuth (rad, wrapped) of grid column ``c`` (fractional allowed)."""
         return wrap_angle(self.azimuth_col0_rad - np.asarray(c, dtype=np.float64) * self.rad_per_px)
 
+    def column_of_azimuth(self, azimuth_rad: float | np.ndarray) -> np.ndarray:
+        """Grid column in [0, W) that looks at ``azimuth_rad``."""
+        return np.mod((self.azimuth_col0_rad - np.asarray(azimuth_rad, dtype=np.float64)) / self.rad_per_px, self.width_px)
+
     def elevation_of_row(self, v: float | np.ndarray) -> np.ndarray:
         """Elevation (rad) of grid row ``v``."""
         return np.arctan((0.5 * self.height_px - np.asarray(v, dtype=np.float64)) / self.focal_v_px)
