@@ -94,7 +94,7 @@ class CorrelationConfig:
     """
 
     enabled: bool = True
-    pyramid_steps: int = 3
+    pyramid_steps: int = 4
     pyramid_ratio: float = 0.85
     min_peak: float = 0.5
     ambiguity_margin: float = 0.05

@@ -1,0 +1,162 @@
+"""Panorama correlation (θ3, scale) against exact truth: real 360° photos cut at known yaws, synthetic scenes, the simulator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from factorloc import CameraImage, Estimate, Pose2, Query, Reference
+from factorloc.errors import ConfigError, InputError
+from factorloc.estimators import correlation as co
+from factorloc.estimators.base import Hypotheses, Step
+from factorloc.sim import photo
+
+PHOTOS = {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}
+
+
+def _err(est: Estimate, truth: float) -> float:
+    return abs(math.remainder(est.value("theta") - truth, 2 * math.pi))
+
+
+@pytest.fixture(scope="module", params=sorted(PHOTOS))
+def real(request, shared_data):
+    path = shared_data / "panoramas" / request.param
+    if not path.is_file():
+        pytest.skip(f"{path} absent")
+    eq = photo.load_equirectangular(path)
+    w, h = PHOTOS[request.param]
+    ref = Reference(panorama=photo.reference_panorama(eq, w, h))
+    return request.param, eq, ref, co.prepare(ref)
+
+
+@pytest.fixture(scope="module")
+def synthetic():
+    eq = photo.synthetic_equirectangular(256, rng=np.random.default_rng(21))
+    ref = Reference(panorama=photo.reference_panorama(eq, 1024, 160), T_world_reference=Pose2(-1.0, 0.5, -0.7))
+    return eq, ref, co.prepare(ref)
+
+
+def _views(eq, n, rng, fault):
+    for _ in range(n):
+        heading, yaw = rng.uniform(-math.pi, math.pi), rng.uniform(-0.6, 0.6)
+        cam = photo.camera_view(eq, heading, yaw, width_px=320, height_px=240)
+        img = cam.image_bgr
+        if fault == "lighting":
+            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
+                                    blur_sigma_px=0.7, rng=rng)
+        elif fault == "occlusion":
+            img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
+        yield heading, CameraImage(img, cam.hfov_rad, cam.yaw_in_robot_rad)
+
+
+@pytest.mark.parametrize("fault", ["clean", "lighting", "occlusion"])
+def test_heading_on_real_photos_is_accurate_and_never_confidently_wrong(real, fault) -> None:
+    name, eq, ref, prepared = real
+    rng = np.random.default_rng([len(name), ["clean", "lighting", "occlusion"].index(fault), 7])
+    errors, z, reliable, scales = [], [], [], []
+    for heading, cam in _views(eq, 10, rng, fault):
+        est = co.estimate(ref, Query(images=(cam,)), prepared=prepared)
+        reliable.append(est.reliable)
+        if est.reliable:
+            errors.append(_err(est, heading))
+            z.append(_err(est, heading) / est.sigma("theta"))
+            scales.append(est.diagnostics["scale"])
+        # σ is never below one pixel's angle at the chosen level
+        assert est.sigma("theta") >= est.diagnostics.get("pixel_rad", 0.0) - 1e-12
+    assert np.mean(reliable) >= (0.7 if fault != "occlusion" else 0.3), f"{name} {fault}: reliable {np.mean(reliable):.2f}"
+    assert np.median(errors) < math.radians(0.5)
+    assert max(z) < 3.0, f"{name} {fault}: a reliable estimate is off by {max(z):.1f}σ"
+    assert np.all(np.abs(np.array(scales) - 1.0) < 0.1)  # same viewpoint: scale 1
+
+
+@pytest.mark.parametrize("true_scale", [0.75, 1.3])
+def test_scale_of_a_magnified_or_shrunk_view_is_recovered(synthetic, true_scale) -> None:
+    eq, ref, prepared = synthetic
+    hfov = math.radians(57.0)
+    cut = 2 * math.atan(math.tan(hfov / 2) / true_scale)  # a zoomed cut labelled with the nominal fov = magnified by s
+    for heading in (-2.0, 0.5, 2.8):
+        raw = photo.camera_view(eq, heading, 0.0, hfov_rad=cut, width_px=320, height_px=240)
+        est = co.estimate(ref, Query(images=(CameraImage(raw.image_bgr, hfov),)), prepared=prepared)
+        assert est.reliable, est.reason
+        assert est.diagnostics["scale"] == pytest.approx(true_scale, rel=0.1)
+        assert _err(est, -0.7 + heading) < math.radians(0.5)
+
+
+def test_a_view_straddling_the_panorama_seam_matches(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    heading = math.pi - 0.1  # the view covers reference azimuths on both sides of ±π
+    cam = photo.camera_view(eq, heading, 0.0, width_px=320, height_px=240)
+    est = co.estimate(ref, Query(images=(cam,)), prepared=prepared)
+    assert est.reliable and _err(est, -0.7 + heading) < math.radians(0.2)
+
+
+def test_several_images_and_a_query_panorama(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    heading = 1.9
+    cams = tuple(photo.camera_view(eq, heading, yaw, math.radians(70), 240, 180) for yaw in (-1.6, 0.0, 1.6))
+    est = co.estimate(ref, Query(images=cams), prepared=prepared)
+    assert est.reliable and est.diagnostics["views"] == 3 and _err(est, -0.7 + heading) < math.radians(0.2)
+    pano_q = photo.panorama_view(eq, heading, 600, 120, math.radians(70))
+    est = co.estimate(ref, Query(panorama=pano_q), prepared=prepared)
+    assert est.reliable and _err(est, -0.7 + heading) < math.radians(0.3)
+
+
+def test_seeding_limits_the_searched_band_and_keeps_the_answer(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 0.4, 0.1, width_px=320, height_px=240)
+    q = Query(images=(cam,))
+    blind = co.estimate(ref, q, prepared=prepared)
+    seeded = co.estimate(ref, q, Hypotheses((Estimate.heading("compass", -0.7 + 0.4 + 0.01, 0.01),)), prepared=prepared)
+    assert blind.reliable and seeded.reliable
+    assert blind.diagnostics["searched_rad"] == pytest.approx(2 * math.pi)
+    assert seeded.diagnostics["searched_rad"] == pytest.approx(2 * math.radians(5.0))
+    assert seeded.diagnostics["searched_positions"] < 0.1 * blind.diagnostics["searched_positions"]
+    assert abs(blind.value("theta") - seeded.value("theta")) < math.radians(0.05)
+
+
+def test_a_periodic_scene_is_flagged_ambiguous_without_a_seed() -> None:
+    eq = photo.synthetic_equirectangular(256, rng=np.random.default_rng(4), period=4)
+    ref = Reference(panorama=photo.reference_panorama(eq, 1024, 160))
+    cam = photo.camera_view(eq, 0.3, 0.0, hfov_rad=math.radians(40), width_px=240, height_px=200)
+    est = co.estimate(ref, Query(images=(cam,)))
+    assert not est.reliable and "ambiguous" in est.reason
+    # a seed that selects one period removes the ambiguity
+    est = co.estimate(ref, Query(images=(cam,)), Hypotheses((Estimate.heading("compass", 0.3, 0.02),)))
+    assert est.reliable and _err(est, 0.3) < math.radians(0.3)
+
+
+def test_peak_below_ct_is_unreliable(synthetic) -> None:
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 0.4, 0.0, width_px=320, height_px=240)
+    noisy = CameraImage(photo.photometric(cam.image_bgr, noise_sigma=60.0, rng=np.random.default_rng(0)), cam.hfov_rad)
+    cfg = co.CorrelationConfig(min_peak=0.95)
+    est = co.estimate(ref, Query(images=(noisy,)), config=cfg, prepared=prepared)
+    assert not est.reliable and "< Ct" in est.reason
+    assert est.diagnostics["peak"] < 0.95
+
+
+@pytest.mark.parametrize("value", [0, 255, 90])
+def test_black_white_or_flat_images_give_an_unreliable_estimate_with_a_reason(synthetic, value) -> None:
+    _, ref, prepared = synthetic
+    est = co.estimate(ref, Query(images=(CameraImage(np.full((240, 320, 3), value, np.uint8)),)), prepared=prepared)
+    assert not est.reliable and ("black" in est.reason or "flat" in est.reason)
+
+
+def test_step_skips_missing_inputs_and_implements_the_protocol(synthetic) -> None:
+    _, ref, _ = synthetic
+    step = co.CorrelationStep()
+    assert isinstance(step, Step) and step.name == "correlation"
+    assert step.estimate(step.prepare(ref), Query(), Hypotheses()) is None
+    no_pano = Reference(scan=__import__("factorloc").Scan(np.zeros((3, 2))))
+    assert step.prepare(no_pano) is None
+    with pytest.raises(InputError, match="panorama"):
+        co.estimate(no_pano, Query())
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ConfigError, match="Ct"):
+        co.CorrelationConfig(min_peak=1.5)
+    with pytest.raises(ConfigError, match="pyramid_ratio"):
+        co.CorrelationConfig(pyramid_ratio=1.2)
