@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Annotated, Any, Optional
 
 import typer
+from rich import box
 from rich.console import Console
 from rich.table import Table
 
@@ -148,6 +149,318 @@ def fuse(
     else:
         console.print(steps_table(loc, "Estimates"))
         console.print(pose_table(loc))
+
+
+# ----------------------------------------------------------------------------
+# evaluate
+# ----------------------------------------------------------------------------
+def _num(v: Any, fmt: str, scale: float = 1.0, unit: str = "") -> str:
+    """A figure of the evaluation JSON (``None`` = not applicable) formatted for a table."""
+    if v is None:
+        return "[dim]—[/]"
+    return f"{v * scale:{fmt}}{unit}"
+
+
+def _pct(v: Any) -> str:
+    return _num(v, ".0f", 100.0, "%")
+
+
+def _graded(v: Any, text: str, good: bool) -> str:
+    if v is None:
+        return text
+    return f"[green]{text}[/]" if good else f"[yellow]{text}[/]"
+
+
+def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> Table:
+    """Accuracy, honesty and speed of the fused poses: one row for all queries, then one per fault."""
+    table = Table(
+        title=title,
+        title_justify="left",
+        header_style="bold",
+        box=box.SIMPLE_HEAD,
+        caption="position in cm, heading θ in degrees; NEES ≈ 3 and conf. wrong ≤ 1 % when the covariance is honest",
+        caption_justify="left",
+    )
+    for col in ("queries", "n", "pos\nRMSE", "pos\np95", "θ\nRMSE", "θ\np95", "NEES", "conf.\nwrong", "full\npose", "ms"):
+        table.add_column(col, justify="left" if col == "queries" else "right", no_wrap=True)
+
+    def row(label: str, s: dict[str, Any], style: str = "") -> None:
+        nees, wrong = s["nees_mean"], s["confidently_wrong_rate"]
+        table.add_row(
+            f"[{style}]{label}[/]" if style else label,
+            str(s["queries"]),
+            _num(s["position_rmse_m"], ".1f", 100.0),
+            _num(s["position_p95_m"], ".1f", 100.0),
+            _num(s["heading_rmse_deg"], ".2f"),
+            _num(s["heading_p95_deg"], ".2f"),
+            _graded(nees, _num(nees, ".2f"), nees is not None and 2.0 <= nees <= 4.5),
+            _graded(wrong, _pct(wrong), (wrong or 0.0) <= 0.01),
+            _pct(s["determined_rate"]),
+            _num(s["latency_median_ms"], ".1f"),
+        )
+
+    row("all", out, "bold")
+    for tag, s in out.get("by_fault", {}).items():
+        row("no fault" if tag == "none" else tag, s, "dim" if tag == "none" else "")
+    return table
+
+
+def _short(text: str, n: int = 60) -> str:
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def evaluation_steps_table(out: dict[str, Any], title: str = "Steps") -> Table:
+    """Per step: availability (reliable, fused), its own accuracy, false positives, time, and why it was not fused."""
+    table = Table(
+        title=title,
+        title_justify="left",
+        header_style="bold",
+        box=box.SIMPLE_HEAD,
+        caption="false +: called reliable but off by more than 3σ",
+        caption_justify="left",
+    )
+    for col in ("step", "reliable", "fused", "pos\nRMSE", "θ\nRMSE", "false\n+", "ms\nmedian", "ms\np95"):
+        table.add_column(col, justify="left" if col == "step" else "right", no_wrap=True)
+    for name, s in out["steps"].items():
+        fp = s.get("false_positive_count", 0)
+        table.add_row(
+            f"[bold]{name}[/]",
+            _pct(s["reliable_rate"]),
+            _pct(s["fused_rate"]),
+            _num(s["position_rmse_m"], ".1f", 100.0),
+            _num(s["heading_rmse_deg"], ".2f"),
+            f"[red]{fp}[/]" if fp else "0",
+            _num(s["latency_median_ms"], ".1f"),
+            _num(s["latency_p95_ms"], ".1f"),
+        )
+    return table
+
+
+def gate_reasons_text(out: dict[str, Any], per_step: int = 2) -> str:
+    """The most frequent reasons each step was not fused (rich markup, one line per reason)."""
+    lines = []
+    for name, s in out["steps"].items():
+        for reason, count in list((s.get("gate_reasons") or {}).items())[:per_step]:
+            lines.append(f"  [bold]{name}[/] [dim]×{count}[/] {_short(reason, 90)}")
+    return "\n".join(["[bold]Why steps were not fused[/] (most frequent, numbers masked as #)", *lines]) if lines else ""
+
+
+def _load_config(path: Optional[Path]) -> factorloc.Config | None:
+    return None if path is None else factorloc.Config.from_yaml(path)
+
+
+def _run_evaluation(scenario: Any, cfg: factorloc.Config | None, label: str) -> Any:
+    """Evaluate ``scenario`` with a rich progress bar; returns the EvaluationReport."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+    from factorloc.evaluation import evaluate as evaluate_scenario
+
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(label, total=len(scenario.queries))
+        return evaluate_scenario(scenario, config=cfg, progress=lambda done, total: bar.update(task, completed=done, total=total))
+
+
+@app.command()
+def evaluate(
+    scenario: Annotated[Path, typer.Argument(help="Scenario directory (scenario.yaml, see docs/data-format.md).")],
+    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
+    json_out: Annotated[
+        Optional[Path], typer.Option("--json", help="Write every figure as JSON (keys in docs/evaluation.md).")
+    ] = None,
+    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write the figures (PNG) into this directory.")] = None,
+) -> None:
+    """Localize every query of a scenario; report accuracy, honesty, availability and speed."""
+    from factorloc.datasets import load_scenario
+
+    try:
+        cfg = _load_config(config)
+        scen = load_scenario(scenario)
+        report = _run_evaluation(scen, cfg, f"localizing {scen.name}")
+    except FactorlocError as exc:
+        _fail(exc)
+        return
+    out = report.to_json_dict()
+    console.print(evaluation_summary_table(out, f"{scen.name}: fused pose ({out['strategy']})"))
+    console.print(evaluation_steps_table(out))
+    reasons = gate_reasons_text(out)
+    if reasons:
+        console.print(reasons)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(out, indent=2, allow_nan=False))
+        console.print(f"[dim]JSON written to {json_out}[/]")
+    if plot is not None:
+        from factorloc.plotting import save_report_figures
+
+        paths = save_report_figures(report, plot)
+        console.print(f"[dim]figures written to {plot}: {', '.join(p.name for p in paths)}[/]")
+
+
+# ----------------------------------------------------------------------------
+# bench
+# ----------------------------------------------------------------------------
+def bench_tables(out: dict[str, Any]) -> list[Table]:
+    """The bench figures as rich tables: localize per step, seeded vs blind, ICP vs Open3D, fusion, cost curve."""
+    loc = out["localize"]
+    t1 = Table(
+        title=f"localize() on {out['scenario']} ({out['queries']} queries × {loc['repeats']} repeats)", title_justify="left"
+    )
+    for col in ("", "median ms", "p95 ms", "mean ms"):
+        t1.add_column(col, justify="left" if not col else "right")
+    t1.add_row("[bold]localize()[/]", _num(loc["median_ms"], ".1f"), _num(loc["p95_ms"], ".1f"), _num(loc["mean_ms"], ".1f"))
+    for name, s in loc["steps"].items():
+        t1.add_row(f"  {name}", _num(s["median_ms"], ".2f"), _num(s["p95_ms"], ".2f"), _num(s["mean_ms"], ".2f"))
+
+    h = out["hierarchy"]
+    t2 = Table(title="Hierarchy ablation: every step seeded vs every step blind", title_justify="left")
+    for col in ("", "seeded", "blind", "blind / seeded"):
+        t2.add_column(col, justify="left" if not col else "right")
+    s, b = h["seeded"], h["blind"]
+    t2.add_row(
+        "median ms / query", _num(s["median_ms"], ".1f"), _num(b["median_ms"], ".1f"), _num(h["time_ratio"], ".1f", 1.0, "×")
+    )
+    lb = "≥ " if h["false_positive_ratio_is_lower_bound"] else ""
+    t2.add_row(
+        "false positives (reliable, > 3σ)",
+        str(s["false_positive_count"]),
+        str(b["false_positive_count"]),
+        f"{lb}{h['false_positive_ratio']:.1f}×" if h["false_positive_ratio"] is not None else "—",
+    )
+    for name in s["steps_false_positive_count"]:
+        t2.add_row(
+            f"  {name}: false + / reliable",
+            f"{s['steps_false_positive_count'][name]} / {_pct(s['steps_reliable_rate'][name])}",
+            f"{b['steps_false_positive_count'][name]} / {_pct(b['steps_reliable_rate'][name])}",
+            "",
+        )
+    t2.add_row("confidently-wrong fused", _pct(s["confidently_wrong_rate"]), _pct(b["confidently_wrong_rate"]), "")
+
+    icp = out["icp_vs_open3d"]
+    t3 = Table(title=f"ICP vs Open3D point-to-plane ({icp.get('pairs', 0)} pairs, same seeds)", title_justify="left")
+    for col in ("", "ours", "Open3D", "Open3D / ours"):
+        t3.add_column(col, justify="left" if not col else "right")
+    if icp.get("pairs"):
+        t3.add_row(
+            "median ms",
+            _num(icp["ours_median_ms"], ".2f"),
+            _num(icp["open3d_median_ms"], ".2f"),
+            _num(icp["time_ratio"], ".2f", 1.0, "×"),
+        )
+        t3.add_row(
+            "median error",
+            _num(icp["ours_median_error_m"], ".2f", 100.0, " cm"),
+            _num(icp["open3d_median_error_m"], ".2f", 100.0, " cm"),
+            _num(icp["error_ratio"], ".2f", 1.0, "×"),
+        )
+        t3.add_row(
+            "median heading error",
+            _num(icp["ours_median_error_deg"], ".3f", 1.0, "°"),
+            _num(icp["open3d_median_error_deg"], ".3f", 1.0, "°"),
+            "",
+        )
+        t3.add_row("success (< 5 cm, < 1°)", _pct(icp["ours_success_rate"]), _pct(icp["open3d_success_rate"]), "")
+
+    f = out["fusion"]
+    t4 = Table(title=f"Fusion: GTSAM graph vs closed-form product ({f.get('queries', 0)} queries)", title_justify="left")
+    for col in ("", "value"):
+        t4.add_column(col, justify="left" if not col else "right")
+    if f.get("queries"):
+        t4.add_row("graph median", _num(f["graph_median_us"], ".0f", 1.0, " µs"))
+        t4.add_row("product median", _num(f["product_median_us"], ".0f", 1.0, " µs"))
+        t4.add_row("graph / product", _num(f["time_ratio"], ".1f", 1.0, "×"))
+        t4.add_row("max |Δ position| (per-axis inputs)", _num(f["max_position_diff_m"], ".2e", 1.0, " m"))
+        t4.add_row("max |Δ heading| (per-axis inputs)", _num(f["max_heading_diff_rad"], ".2e", 1.0, " rad"))
+        t4.add_row(
+            f"max |Δ position| (x–θ coupled, {f['queries_with_cross_covariance']} q.)",
+            _num(f["max_position_diff_m_cross_covariance"], ".2e", 1.0, " m"),
+        )
+
+    c = out["cost_curve"]
+    t5 = Table(title=f"Cost curve (exponent of t ∝ scale^k: {_num(c['exponent'], '.2f')})", title_justify="left")
+    steps = list(c["points"][0]["steps_median_ms"])
+    for col in ["scale", "pano width", "ref cloud", "query cloud", "ms / query", *steps]:
+        t5.add_column(col, justify="right")
+    for p in c["points"]:
+        t5.add_row(
+            f"{p['factor']:g}×",
+            _num(p["panorama_width_px"], "d"),
+            _num(p["reference_cloud_points"], "d"),
+            _num(p["query_cloud_points_median"], ".0f"),
+            _num(p["median_ms"], ".1f"),
+            *[_num(p["steps_median_ms"][n], ".2f") for n in steps],
+        )
+    t5.add_row("[bold]exponent[/]", "", "", "", _num(c["exponent"], ".2f"), *[_num(c["steps_exponent"][n], ".2f") for n in steps])
+    return [t1, t2, t3, t4, t5]
+
+
+@app.command()
+def bench(
+    json_out: Annotated[
+        Optional[Path], typer.Option("--json", help="Write the figures as JSON (keys in docs/evaluation.md).")
+    ] = None,
+    queries: Annotated[int, typer.Option("--queries", min=1, help="Queries of the generated scenario.")] = 200,
+    scenario: Annotated[
+        Optional[Path], typer.Option("--scenario", help="Benchmark this scenario directory instead of generating one.")
+    ] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of the generated scenario.")] = 7,
+    repeats: Annotated[int, typer.Option("--repeats", min=1, help="Passes over the queries (figures are medians).")] = 3,
+    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
+) -> None:
+    """Speed as ratios against peers in the same run: localize, seeded vs blind, ICP vs Open3D, GTSAM vs product, cost curve."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from factorloc.benchmarking import BenchSettings, run_bench
+
+    try:
+        cfg = _load_config(config)
+        if scenario is not None:
+            from factorloc.datasets import load_scenario
+
+            scen = load_scenario(scenario)
+        else:
+            scen = _generated_scenario(queries, seed)
+        settings = BenchSettings(repeats=repeats, cost_queries=min(20, len(scen.queries)))
+        with Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+            transient=True,
+        ) as bar:
+            tasks: dict[str, Any] = {}
+
+            def progress(stage: str, done: int, total: int) -> None:
+                if stage not in tasks:
+                    tasks[stage] = bar.add_task(stage, total=total)
+                bar.update(tasks[stage], completed=done, total=total)
+
+            out = run_bench(scen, cfg, settings=settings, progress=progress)
+    except FactorlocError as exc:
+        _fail(exc)
+        return
+    for t in bench_tables(out):
+        console.print(t)
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        json_out.write_text(json.dumps(out, indent=2, allow_nan=False))
+        console.print(f"[dim]JSON written to {json_out}[/]")
+
+
+def _generated_scenario(queries: int, seed: int) -> Any:
+    """A scenario generated in the built-in apartment with the default fault mix, with a progress bar."""
+    from factorloc.sim import generate_scenario  # the simulator's generator
+
+    with console.status(f"generating a {queries}-query scenario (seed {seed})…"):
+        return generate_scenario(world="apartment", queries=queries, seed=seed)
 
 
 # ----------------------------------------------------------------------------

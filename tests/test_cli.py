@@ -51,3 +51,64 @@ def test_fuse_rejects_missing_and_malformed_files(tmp_path: Path) -> None:
     bad.write_text(json.dumps([{"step": "a", "components": ["x"], "values": [1.0], "sigmas": [1.0]}]))
     result = runner.invoke(app, ["fuse", str(bad)])
     assert result.exit_code == 2 and "components" in result.output
+
+
+# ----------------------------------------------------------------------------
+# evaluate / bench (added by the evaluation issue)
+# ----------------------------------------------------------------------------
+def _room_scenario(path: Path, n: int = 4) -> Path:
+    """A scan-only scenario in a 5×4 m room with a box: odometry off by (4, -3) cm and 1.1°, exact scans."""
+    import numpy as np
+
+    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference, save_scenario
+
+    rng = np.random.default_rng(5)
+    segments = [((0, 0), (5, 0)), ((5, 0), (5, 4)), ((5, 4), (0, 4)), ((0, 4), (0, 0)),
+                ((2, 1.5), (3, 1.5)), ((3, 1.5), (3, 2.2)), ((3, 2.2), (2, 2.2)), ((2, 2.2), (2, 1.5))]
+
+    def room() -> np.ndarray:
+        pts = [np.array(a, float) + rng.uniform(0, 1, (int(30 * math.dist(a, b)), 1)) * (np.array(b, float) - np.array(a, float))
+               for a, b in segments]
+        return np.vstack(pts)
+
+    T_ref = factorloc.Pose2(1.0, 1.0, 0.3)
+    ref = factorloc.Reference(scan=factorloc.Scan(T_ref.inverse().transform_points(room())), T_world_reference=T_ref)
+    queries = []
+    for i in range(n):
+        T = factorloc.Pose2(rng.uniform(0.6, 1.4), rng.uniform(0.6, 3.4), rng.uniform(-3, 3))
+        odo = factorloc.Odometry(factorloc.Pose2(T.x + 0.04, T.y - 0.03, T.theta + 0.02), 0.05, 0.05, 0.03)
+        q = factorloc.Query(scan=factorloc.Scan(T.inverse().transform_points(room())), odometry=odo, id=f"q{i}")
+        queries.append(ScenarioQuery(q, float(i), T, ("blur",) if i == 1 else ()))
+    save_scenario(Scenario("room", (ScenarioReference("ref0", ref),), tuple(queries)), path)
+    return path
+
+
+def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Path) -> None:
+    scen = _room_scenario(tmp_path / "room")
+    result = runner.invoke(app, ["evaluate", str(scen), "--json", str(tmp_path / "out.json"), "--plot", str(tmp_path / "figs")])
+    assert result.exit_code == 0, result.output
+    assert "room: fused pose" in result.output and "icp" in result.output
+    out = json.loads((tmp_path / "out.json").read_text())
+    for key in ("position_rmse_m", "position_median_m", "heading_rmse_deg", "heading_median_deg", "nees_mean",
+                "outside_99_rate", "confidently_wrong_rate", "latency_median_ms", "latency_p95_ms"):
+        assert key in out and key in out["by_fault"]["blur"], key
+    assert out["queries"] == 4 and out["steps"]["icp"]["reliable_rate"] == 1.0
+    assert out["steps"]["compass"]["gate_reasons"] == {"skipped: inputs absent": 4}
+    assert out["position_rmse_m"] < 0.01  # exact scans: ICP recovers the pose; the 5 cm odometry error is gone
+    assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
+        "availability.png", "calibration.png", "error_vs_distance.png", "floor_plan.png"]
+
+
+def test_evaluate_fails_cleanly_on_a_missing_scenario(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["evaluate", str(tmp_path / "nowhere")])
+    assert result.exit_code == 2 and "error" in result.output
+
+
+def test_bench_on_a_tiny_scenario_writes_every_section(tmp_path: Path) -> None:
+    scen = _room_scenario(tmp_path / "room", n=2)
+    result = runner.invoke(app, ["bench", "--scenario", str(scen), "--repeats", "1", "--json", str(tmp_path / "bench.json")])
+    assert result.exit_code == 0, result.output
+    out = json.loads((tmp_path / "bench.json").read_text())
+    assert {"localize", "hierarchy", "icp_vs_open3d", "fusion", "cost_curve"} <= set(out)
+    assert out["icp_vs_open3d"]["pairs"] == 2 and out["hierarchy"]["time_ratio"] > 0
+    assert "Hierarchy ablation" in result.output
