@@ -23,8 +23,30 @@ axis horizontal; ``yaw_in_robot_rad`` pans the camera). Clouds are N×3 in the
 robot frame, z measured from the floor; ``rng=None`` renders noise-free.
 Every sensor sits on the robot's vertical axis at its ``height_m``.
 A world is a :class:`World` (load your own with :func:`load_world`, YAML/JSON).
+
+Motion and faults: :func:`random_walk` / :func:`waypoint_trajectory` give N×3
+true trajectories; :func:`simulate_odometry` dead-reckons along one with a
+:class:`DriftModel` (~5 % drift, honest σ growing with distance since the
+reset); faults are :func:`place_occluders` (pass ``occluders=`` to any
+renderer), :func:`relight`, :func:`motion_blur`, :func:`depth_dropout`,
+``glass_faces=`` of :func:`render_cloud`. A whole scenario:
+
+>>> from factorloc.sim import generate_scenario               # doctest: +SKIP
+>>> scenario = generate_scenario("apartment", n_queries=30, seed=103)  # doctest: +SKIP
 """
 
+from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
+from factorloc.sim.generate import FAULTS, GeneratorConfig, generate_scenario
+from factorloc.sim.motion import (
+    DriftModel,
+    OdometryRun,
+    path_length_m,
+    path_rotation_rad,
+    random_walk,
+    sample_free_pose,
+    simulate_odometry,
+    waypoint_trajectory,
+)
 from factorloc.sim.render import (
     DepthCamera,
     Hits,
@@ -53,6 +75,22 @@ from factorloc.sim.world import (
 )
 
 __all__ = [
+    "FAULTS",
+    "DriftModel",
+    "GeneratorConfig",
+    "OdometryRun",
+    "depth_dropout",
+    "generate_scenario",
+    "most_seen_face",
+    "motion_blur",
+    "path_length_m",
+    "path_rotation_rad",
+    "place_occluders",
+    "random_walk",
+    "relight",
+    "sample_free_pose",
+    "simulate_odometry",
+    "waypoint_trajectory",
     "BASE_TEXTURES",
     "DECAL_IMAGES",
     "Decal",

@@ -87,7 +87,7 @@ def synthetic_equirectangular(
     for scale in (4, 16, 48):
         noise = r.normal(0.0, 1.0, (h, wp, 3)).astype(np.float32)
         noise = cv2.copyMakeBorder(noise, 0, 0, wp, wp, cv2.BORDER_WRAP)
-        noise = cv2.GaussianBlur(noise, (0, 0), scale / 4.0)[:, wp:2 * wp]
+        noise = cv2.GaussianBlur(noise, (0, 0), scale / 4.0)[:, wp : 2 * wp]
         img += noise / (noise.std() + 1e-6) * 40.0
     for _ in range(12 * max(1, 4 // p)):
         x0, y0 = int(r.integers(0, wp)), int(r.integers(0, h))

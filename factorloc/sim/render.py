@@ -26,8 +26,12 @@ vertical axis. Camera pitch is always 0 (optical axes horizontal).
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -36,7 +40,7 @@ from factorloc._validate import finite_float, nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.sim.textures import atlas_of
-from factorloc.sim.world import World
+from factorloc.sim.world import Obstacle, World
 from factorloc.types import CameraImage, Panorama, PointCloud, Scan
 
 #: Number of nearest segment hits kept per column (enough for a few low obstacles in front of a wall).
@@ -153,6 +157,7 @@ class Hits:
     ``distance_m``: horizontal distance from the sensor axis to the hit (capped at 1 km).
     ``face``: index into ``world.segments.faces`` (−1 unless kind 2).
     ``x_m``, ``y_m``, ``z_m``: world coordinates of the hit (float64, computed on access).
+    ``glass``: the hit face is glass (no depth return).
     """
 
     kind: np.ndarray
@@ -165,6 +170,7 @@ class Hits:
     face_sel: np.ndarray
     plane_h: np.ndarray
     wall_h: float
+    glass: np.ndarray
     map_x: np.ndarray | None = None  # float32 coordinates into atlas.packed, for cv2.remap
     map_y: np.ndarray | None = None
 
@@ -299,8 +305,9 @@ def cast_rays(
     kind += pseudo_up.view(np.int8) * np.int8(_CEILING - _FLOOR)
     face = np.take(table(np.where(is_face_tab, f_tab, -1), -1, np.int64), lin)
     plane_h = np.take(table(np.where(is_face_tab, 0.0, h_tab)), lin) + pseudo_up * ft(wall_h)
+    glass = np.take(table(is_face_tab & seg.face_glass[np.maximum(f_tab, 0)], 0, bool), lin)
     if not texture:
-        return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h)
+        return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, glass)
 
     # --- texture coordinates (float32) -------------------------------------------
     atlas = atlas_of(world)
@@ -337,7 +344,7 @@ def cast_rays(
     scale = np.take(f32(0.5) ** np.arange(len(atlas.levels), dtype=f32), level)
     map_x = np.take(atlas.level_x0, level) + ax * scale - f32(0.5)
     map_y = np.take(atlas.level_y0, level) + ay * scale - f32(0.5)
-    return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, map_x, map_y)
+    return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, glass, map_x, map_y)
 
 
 def _shade(world: World, hits: Hits) -> np.ndarray:
@@ -362,6 +369,59 @@ def panorama_rays(
     return azimuth_col0_rad - 2.0 * math.pi * u / width_px, (0.5 * height_px - v) / f
 
 
+def _occluder_world(world: World, occluders: Sequence[Obstacle]) -> World | None:
+    occ = tuple(occluders)
+    if not occ:
+        return None
+    for i, o in enumerate(occ):
+        if not isinstance(o, Obstacle):
+            raise InputError(f"occluders[{i}] must be an Obstacle, got {type(o).__name__}")
+    return _occluder_world_cached(world.wall_height_m, world.texture_px_per_m, occ)
+
+
+@functools.lru_cache(maxsize=16)
+def _occluder_world_cached(wall_h: float, ppm: float, occ: tuple[Obstacle, ...]) -> World:
+    return World("occluders", (), occ, wall_height_m=wall_h, texture_px_per_m=ppm)
+
+
+def _cast_all(
+    world: World, occluders: Sequence[Obstacle], *args: Any, texture: bool = True
+) -> tuple[Hits, np.ndarray | None, np.ndarray | None]:
+    """Cast against the world and (separately) the occluders; returns the merged hits and the
+    per-pixel choice ``sel`` (True where an occluder is nearer) plus the occluders' image."""
+    hits = cast_rays(world, *args, texture=texture)
+    ow = _occluder_world(world, occluders)
+    if ow is None:
+        return hits, None, None
+    oh = cast_rays(ow, *args, texture=texture)
+    sel = (oh.kind >= _FACE) & (oh.dist < hits.dist)
+    if not np.any(sel):
+        return hits, None, None
+    merged = Hits(
+        kind=np.where(sel, oh.kind, hits.kind),
+        dist=np.where(sel, oh.dist, hits.dist),
+        face=np.where(sel, -1, hits.face),
+        origin=hits.origin,
+        dx=hits.dx,
+        dy=hits.dy,
+        tan_e=hits.tan_e,
+        face_sel=np.where(sel, oh.face_sel, hits.face_sel),
+        plane_h=np.where(sel, oh.plane_h, hits.plane_h),
+        wall_h=hits.wall_h,
+        glass=hits.glass & ~sel,
+        map_x=hits.map_x,
+        map_y=hits.map_y,
+    )
+    return merged, sel, (_shade(ow, oh) if texture else None)
+
+
+def _image(world: World, hits: Hits, sel: np.ndarray | None, occ_img: np.ndarray | None) -> np.ndarray:
+    img = _shade(world, hits)
+    if sel is not None and occ_img is not None:
+        img[sel] = occ_img[sel]
+    return img
+
+
 def render_panorama(
     world: World,
     T_world_robot: Pose2,
@@ -369,6 +429,8 @@ def render_panorama(
     width_px: int = 2048,
     fov_v_rad: float = math.radians(60.0),
     height_px: int | None = None,
+    *,
+    occluders: Sequence[Obstacle] = (),
 ) -> Panorama:
     """Render the 360° cylindrical panorama seen from ``height_m`` above the robot's pose.
 
@@ -377,7 +439,8 @@ def render_panorama(
     decreases to the right), row ``v`` at elevation ``atan((H/2 − v)/f)`` with
     ``f = (H/2)/tan(fov_v_rad/2)``. ``height_px`` defaults to ``width_px // 8``
     (2048 × 256). Rotating the robot by Δθ shifts the image by Δθ·W/2π columns
-    to the right.
+    to the right. ``occluders`` are extra obstacles (people, boxes) that are
+    not part of ``world`` — what a query sees and the reference did not.
     """
     if not isinstance(T_world_robot, Pose2):
         raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
@@ -389,8 +452,10 @@ def render_panorama(
     az, row_tan = panorama_rays(W, H, fov)
     f = 0.5 * H / math.tan(0.5 * fov)
     ang = np.full(W, max(2.0 * math.pi / W, 1.0 / f))
-    hits = cast_rays(world, T_world_robot, positive_float("height_m", height_m), az, row_tan, np.ones(W), ang)
-    return Panorama(_shade(world, hits), fov_v_rad=fov, azimuth_col0_rad=math.pi)
+    hits, sel, occ = _cast_all(
+        world, occluders, T_world_robot, positive_float("height_m", height_m), az, row_tan, np.ones(W), ang
+    )
+    return Panorama(_image(world, hits, sel, occ), fov_v_rad=fov, azimuth_col0_rad=math.pi)
 
 
 def _camera_rays(
@@ -403,12 +468,19 @@ def _camera_rays(
     return u, v, a, b
 
 
-def render_camera(world: World, T_world_robot: Pose2, camera: PinholeCamera = PinholeCamera()) -> CameraImage:
+def render_camera(
+    world: World,
+    T_world_robot: Pose2,
+    camera: PinholeCamera = PinholeCamera(),
+    *,
+    occluders: Sequence[Obstacle] = (),
+) -> CameraImage:
     """Render a pinhole image (BGR uint8, ``camera.height_px × camera.width_px``).
 
     Column ``u`` looks at robot-frame azimuth ``yaw + atan((cx − u)/f)`` with
     ``cx = (W−1)/2``, ``f = (W/2)/tan(hfov/2)`` — :meth:`factorloc.CameraImage.azimuth_of_column`;
     row ``v`` at elevation tangent ``(cy − v)/f / sqrt(1 + ((cx − u)/f)²)``.
+    ``occluders``: extra obstacles not in ``world`` (see :func:`render_panorama`).
     """
     if not isinstance(T_world_robot, Pose2):
         raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
@@ -418,26 +490,30 @@ def render_camera(world: World, T_world_robot: Pose2, camera: PinholeCamera = Pi
     _, _, a, b = _camera_rays(camera.width_px, camera.height_px, f, f)
     col_scale = 1.0 / np.sqrt(1.0 + a * a)
     T_sensor = T_world_robot * Pose2(0.0, 0.0, camera.yaw_in_robot_rad)
-    hits = cast_rays(world, T_sensor, camera.height_m, np.arctan(a), b, col_scale, col_scale / f)
-    return CameraImage(_shade(world, hits), hfov_rad=camera.hfov_rad, yaw_in_robot_rad=camera.yaw_in_robot_rad)
+    hits, sel, occ = _cast_all(world, occluders, T_sensor, camera.height_m, np.arctan(a), b, col_scale, col_scale / f)
+    return CameraImage(_image(world, hits, sel, occ), hfov_rad=camera.hfov_rad, yaw_in_robot_rad=camera.yaw_in_robot_rad)
 
 
 def _cloud_world(
-    world: World, T_world_robot: Pose2, cam: DepthCamera, rng: np.random.Generator | None
+    world: World,
+    T_world_robot: Pose2,
+    cam: DepthCamera,
+    rng: np.random.Generator | None,
+    occluders: Sequence[Obstacle] = (),
+    glass_faces: Collection[int] = (),
 ) -> tuple[np.ndarray, Hits, np.ndarray]:
     fx = 0.5 * cam.width_px / math.tan(0.5 * cam.hfov_rad)
     fy = 0.5 * cam.height_px / math.tan(0.5 * cam.vfov_rad)
     _, _, a, b = _camera_rays(cam.width_px, cam.height_px, fx, fy, cam.stride_px)
     col_scale = 1.0 / np.sqrt(1.0 + a * a)
     T_sensor = T_world_robot * Pose2(0.0, 0.0, cam.yaw_in_robot_rad)
-    hits = cast_rays(world, T_sensor, cam.height_m, np.arctan(a), b, col_scale, col_scale / fx * cam.stride_px, texture=False)
+    hits, _, _ = _cast_all(
+        world, occluders, T_sensor, cam.height_m, np.arctan(a), b, col_scale, col_scale / fx * cam.stride_px, texture=False
+    )
     depth = hits.distance_m * col_scale[None, :]  # along the optical axis
-    keep = (depth >= cam.min_range_m) & (depth <= cam.max_range_m)
-    if np.any(hits.kind == _FACE):
-        glass = np.zeros_like(keep)
-        fm = hits.kind == _FACE
-        glass[fm] = world.segments.face_glass[hits.face[fm]]
-        keep &= ~glass
+    keep = (depth >= cam.min_range_m) & (depth <= cam.max_range_m) & ~hits.glass
+    if glass_faces:
+        keep &= ~np.isin(hits.face, np.fromiter(glass_faces, dtype=np.int64))
     factor = np.ones_like(depth)
     if rng is not None:
         sigma = cam.noise_sigma_m(depth)
@@ -464,21 +540,26 @@ def render_cloud(
     T_world_robot: Pose2,
     depth_camera: DepthCamera = DepthCamera(),
     rng: np.random.Generator | None = None,
+    *,
+    occluders: Sequence[Obstacle] = (),
+    glass_faces: Collection[int] = (),
 ) -> PointCloud:
     """Render the point cloud a depth camera returns (robot frame, z up from the floor).
 
     Points are N×3 metres in the robot frame (x forward, y left, z from the
     floor), row-major over the (strided) pixel grid, keeping depths in
-    ``[min_range_m, max_range_m]`` and dropping glass. With ``rng`` each depth
-    gets Gaussian noise of σ = ``depth_camera.noise_sigma_m(depth)`` along its ray;
-    ``rng=None`` renders noise-free. Values are rounded to float32 precision
-    (so that a float32 file stores them exactly).
+    ``[min_range_m, max_range_m]`` and dropping glass (faces marked ``glass`` in
+    the world, plus the face indices ``glass_faces`` into ``world.segments.faces``).
+    With ``rng`` each depth gets Gaussian noise of σ = ``depth_camera.noise_sigma_m(depth)``
+    along its ray; ``rng=None`` renders noise-free. Values are rounded to float32
+    precision (so that a float32 file stores them exactly). ``occluders``: extra
+    obstacles not in ``world``.
     """
     if not isinstance(T_world_robot, Pose2):
         raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
     if not isinstance(depth_camera, DepthCamera):
         raise InputError(f"depth_camera must be a DepthCamera, got {type(depth_camera).__name__}")
-    pts, _, _ = _cloud_world(world, T_world_robot, depth_camera, rng)
+    pts, _, _ = _cloud_world(world, T_world_robot, depth_camera, rng, occluders, glass_faces)
     if len(pts) == 0:
         raise InputError(
             f"the depth camera at {T_world_robot} sees nothing within {depth_camera.min_range_m}–{depth_camera.max_range_m} m"
@@ -492,6 +573,9 @@ def render_cloud_360(
     depth_camera: DepthCamera = DepthCamera(),
     rng: np.random.Generator | None = None,
     n_views: int | None = None,
+    *,
+    occluders: Sequence[Obstacle] = (),
+    glass_faces: Collection[int] = (),
 ) -> PointCloud:
     """A 360° cloud: the robot turns its head through ``n_views`` equally spaced yaws and merges the views.
 
@@ -504,8 +588,8 @@ def render_cloud_360(
     n = math.ceil(2.0 * math.pi / depth_camera.hfov_rad) if n_views is None else _positive_int("n_views", n_views)
     parts = []
     for i in range(n):
-        cam = _replace(depth_camera, yaw_in_robot_rad=depth_camera.yaw_in_robot_rad + 2.0 * math.pi * i / n)
-        pts, _, _ = _cloud_world(world, T_world_robot, cam, rng)
+        cam = dataclasses.replace(depth_camera, yaw_in_robot_rad=depth_camera.yaw_in_robot_rad + 2.0 * math.pi * i / n)
+        pts, _, _ = _cloud_world(world, T_world_robot, cam, rng, occluders, glass_faces)
         parts.append(pts)
     pts = np.vstack(parts)
     if len(pts) == 0:
@@ -523,6 +607,8 @@ def render_scan(
     max_range_m: float = 10.0,
     sigma_m: float = 0.01,
     rng: np.random.Generator | None = None,
+    *,
+    occluders: Sequence[Obstacle] = (),
 ) -> Scan:
     """A planar laser scan at ``height_m`` above the floor: ``n_beams`` beams over 360°, beam i at azimuth 2π·i/n.
 
@@ -536,21 +622,22 @@ def render_scan(
     rmax = positive_float("max_range_m", max_range_m)
     sig = nonnegative_float("sigma_m", sigma_m)
     az = 2.0 * math.pi * np.arange(n) / n
-    hits = cast_rays(
-        world, T_world_robot, positive_float("height_m", height_m), az, np.zeros(1), np.ones(n), np.full(n, 2 * math.pi / n)
+    hits, _, _ = _cast_all(
+        world,
+        occluders,
+        T_world_robot,
+        positive_float("height_m", height_m),
+        az,
+        np.zeros(1),
+        np.ones(n),
+        np.full(n, 2 * math.pi / n),
+        texture=False,
     )
     r = hits.distance_m[0].copy()
-    keep = (hits.kind[0] == _FACE) & (r < rmax)
-    keep[keep] &= ~world.segments.face_glass[hits.face[0][keep]]
+    keep = (hits.kind[0] >= _FACE) & (r < rmax) & ~hits.glass[0]
     if rng is not None and sig > 0:
         r = r + rng.normal(0.0, sig, r.shape)
     pts = np.column_stack([r * np.cos(az), r * np.sin(az)])[keep]
     if len(pts) == 0:
         raise InputError(f"the scanner at {T_world_robot} sees nothing within {rmax} m")
     return Scan(pts.astype(np.float32).astype(np.float64))
-
-
-def _replace(cam: DepthCamera, **changes: float) -> DepthCamera:
-    import dataclasses
-
-    return dataclasses.replace(cam, **changes)

@@ -332,6 +332,9 @@ class World:
 
     ``texture_px_per_m`` is the resolution of the baked wall textures (texels
     per metre of face). Baking is deterministic, so a world always renders the same.
+    ``regions`` names axis-aligned rectangles ``(x0, y0, x1, y1)`` the scenario
+    generator uses: ``"reference"`` (where the reference is taken: its centre)
+    and ``"corridor"`` (where ICP is degenerate along the corridor's axis).
     """
 
     name: str
@@ -341,6 +344,7 @@ class World:
     floor: Material = field(default_factory=lambda: Material("parquet", (1.0, 1.0, 1.0), 2.0))
     ceiling: Material = field(default_factory=lambda: Material("ceiling", (1.0, 1.0, 1.0), 2.0))
     texture_px_per_m: float = 128.0
+    regions: tuple[tuple[str, tuple[float, float, float, float]], ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -369,6 +373,20 @@ class World:
         if not 16.0 <= ppm <= 512.0:
             raise InputError(f"World({self.name}).texture_px_per_m must be in [16, 512], got {ppm}")
         object.__setattr__(self, "texture_px_per_m", ppm)
+        regions = []
+        items = self.regions.items() if isinstance(self.regions, dict) else self.regions
+        for item in items:
+            try:
+                rname, box = item
+                box = tuple(
+                    finite_float(f"World({self.name}).regions[{rname}]", v) for v in _seq(f"World.regions[{rname}]", box, 4)
+                )
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"World({self.name}).regions must map names to (x0, y0, x1, y1), got {item!r}") from exc
+            if not (box[2] > box[0] and box[3] > box[1]):
+                raise InputError(f"World({self.name}).regions[{rname}] needs x0 < x1 and y0 < y1, got {box}")
+            regions.append((str(rname), box))
+        object.__setattr__(self, "regions", tuple(regions))
 
     # --- geometry -------------------------------------------------------------
     @functools.cached_property
@@ -408,6 +426,28 @@ class World:
         inb = (pts[:, 0] > x0) & (pts[:, 0] < x1) & (pts[:, 1] > y0) & (pts[:, 1] < y1)
         return inb & (self.clearance(pts) >= clearance_m)
 
+    def region(self, name: str) -> tuple[float, float, float, float] | None:
+        """The rectangle ``(x0, y0, x1, y1)`` named ``name``, or None."""
+        for rname, box in self.regions:
+            if rname == name:
+                return box
+        return None
+
+    def line_of_sight(self, a_xy: np.ndarray, b_xy: np.ndarray) -> np.ndarray:
+        """Whether the straight segments from points ``a`` (N×2) to ``b`` (N×2) cross no wall or obstacle edge."""
+        a = np.atleast_2d(np.asarray(a_xy, np.float64))
+        b = np.atleast_2d(np.asarray(b_xy, np.float64))
+        s = self.segments
+        d = b - a  # N×2
+        e = s.p1 - s.p0  # S×2
+        w = s.p0[None, :, :] - a[:, None, :]  # N×S×2
+        den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (w[..., 0] * e[None, :, 1] - w[..., 1] * e[None, :, 0]) / den
+            u = (w[..., 0] * d[:, None, 1] - w[..., 1] * d[:, None, 0]) / den
+        cross = (np.abs(den) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+        return ~cross.any(axis=1)
+
     # --- (de)serialisation -----------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -419,11 +459,22 @@ class World:
             "ceiling": self.ceiling.to_dict(),
             "walls": [w.to_dict() for w in self.walls],
             "obstacles": [o.to_dict() for o in self.obstacles],
+            "regions": {name: list(box) for name, box in self.regions},
         }
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "world") -> World:
-        keys = {"format_version", "name", "wall_height_m", "texture_px_per_m", "floor", "ceiling", "walls", "obstacles"}
+        keys = {
+            "format_version",
+            "name",
+            "wall_height_m",
+            "texture_px_per_m",
+            "floor",
+            "ceiling",
+            "walls",
+            "obstacles",
+            "regions",
+        }
         d = _mapping(where, data, keys)
         version = d.get("format_version", WORLD_FORMAT_VERSION)
         if version != WORLD_FORMAT_VERSION:
@@ -439,6 +490,10 @@ class World:
         for key in ("floor", "ceiling"):
             if key in d:
                 kwargs[key] = Material.from_dict(d[key], f"{where}.{key}")
+        if d.get("regions"):
+            if not isinstance(d["regions"], dict):
+                raise InputError(f"{where}.regions must be a mapping of name: [x0, y0, x1, y1], got {d['regions']!r}")
+            kwargs["regions"] = tuple(d["regions"].items())
         return cls(
             name=d["name"],
             walls=tuple(
