@@ -464,6 +464,62 @@ def _generated_scenario(queries: int, seed: int) -> Any:
 
 
 # ----------------------------------------------------------------------------
+# simulate
+# ----------------------------------------------------------------------------
+@app.command()
+def simulate(
+    out_dir: Annotated[Path, typer.Argument(help="Directory to write the scenario to.")],
+    world: Annotated[str, typer.Option("--world", help="Built-in world name or a world .yaml/.json file.")] = "apartment",
+    queries: Annotated[int, typer.Option("--queries", min=0, help="Number of queries.")] = 30,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seed: the same seed gives the same scenario bit for bit.")] = 103,
+    faults: Annotated[
+        str,
+        typer.Option("--faults", help="Comma-separated faults that may be applied: 'all', 'none', or e.g. 'occlusion,lighting'."),
+    ] = "all",
+    fault_probability: Annotated[
+        float, typer.Option("--fault-probability", min=0.0, max=1.0, help="Share of faulted queries.")
+    ] = 0.3,
+    image_format: Annotated[str, typer.Option("--image-format", help="png (lossless) or jpg (small) query images.")] = "png",
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an existing scenario directory.")] = False,
+) -> None:
+    """Render a simulated scenario (reference + queries with ground truth, drift and faults) into OUT_DIR."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from factorloc.datasets import save_scenario
+    from factorloc.sim import FAULTS, GeneratorConfig, generate_scenario
+
+    try:
+        if faults.strip() == "all":
+            fault_list: tuple[str, ...] = FAULTS
+        elif faults.strip() in ("", "none"):
+            fault_list = ()
+        else:
+            fault_list = tuple(f.strip() for f in faults.split(",") if f.strip())
+        with Progress(
+            TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=console
+        ) as bar:
+            task = bar.add_task("rendering queries", total=queries)
+            scen = generate_scenario(
+                world,
+                queries,
+                seed,
+                fault_list,
+                GeneratorConfig(fault_probability=fault_probability),
+                progress=lambda done, total: bar.update(task, completed=done, total=total),
+            )
+        path = save_scenario(scen, out_dir, image_format=image_format, overwrite=overwrite)
+    except FactorlocError as exc:
+        _fail(exc)
+        return
+    size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+    n_faulted = sum(1 for q in scen.queries if q.faults)
+    console.print(
+        f"wrote [bold]{path}[/]: {len(scen.queries)} queries ({n_faulted} with faults), world '{scen.world.name}', "
+        f"seed {seed}, {size / 1e6:.2f} MB"
+    )
+
+
+# ----------------------------------------------------------------------------
 # demo
 # ----------------------------------------------------------------------------
 @app.command()
