@@ -32,10 +32,10 @@ import numpy as np
 
 from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses
-from factorloc.geometry import wrap_angle
+from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
 from factorloc.vision import keypoints as kp
-from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed
+from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
 
 log = logging.getLogger(__name__)
@@ -82,6 +82,15 @@ class CompassConfig:
     depth_sigma_rad_per_m
         Model error of the parallax correction (coarse depth map) per metre between the
         hypothesised position and the reference, added to σ.
+    unknown_position_sigma_m, default_range_m
+        Without a position hypothesis the query is assumed within ``unknown_position_sigma_m``
+        of the reference; the parallax this may cause (σ_p / range, the range from the reference
+        depth or ``default_range_m``) enters σ. With a position hypothesis but no reference
+        depth, the displacement plus its σ enter the same way.
+    distinct_margin_rad
+        Seeded search: look-alikes this far beyond the window still take part in the ratio test.
+    seed_consistency_n_sigma
+        Unreliable when θ2 is further than this many combined σ from the seed heading.
     """
 
     enabled: bool = True
@@ -93,7 +102,7 @@ class CompassConfig:
     inlier_band_rad: float = math.radians(1.5)
     window_n_sigma: float = 3.0
     min_window_rad: float = math.radians(3.0)
-    min_inliers: int = 6
+    min_inliers: int = 8
     min_inlier_ratio: float = 0.1
     max_ambiguity: float = 0.5
     max_sigma_rad: float = math.radians(2.0)
@@ -102,6 +111,10 @@ class CompassConfig:
     parallax_correction: bool = True
     camera_height_m: float = 1.0
     depth_sigma_rad_per_m: float = math.radians(0.15)
+    unknown_position_sigma_m: float = 0.05
+    default_range_m: float = 3.0
+    distinct_margin_rad: float = math.radians(30.0)
+    seed_consistency_n_sigma: float = 3.0
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -139,6 +152,7 @@ class PreparedCompass:
     problem: str | None
     config: CompassConfig
     depth: DepthMap | None = None
+    reference_pose: Pose2 | None = None
 
 
 def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
@@ -156,7 +170,8 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
     el = np.asarray(grid.elevation_of_row(xy[:, 1]), dtype=np.float64) if len(xy) else np.zeros(0)
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
-    return PreparedCompass(grid, az, el, desc, reference.T_world_reference.theta, problem, config, depth)
+    pose = reference.T_world_reference
+    return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose)
 
 
 def query_strips(query: Query, grid: Grid) -> tuple[list[Strip], list[str]]:
@@ -279,14 +294,19 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     base["parallax_corrected"] = position is not None
     allowed = None
     if window is not None:
-        # a reference point is a candidate for a query point when its vote falls in the window
-        votes_all = wrap_angle(az_r[None, :] - az_q[:, None] - seed[0])
-        allowed = np.abs(votes_all) <= window + config.inlier_band_rad
+        # a reference point is a candidate for a query point when its vote falls in the window widened by
+        # the distinctiveness margin: the ratio test then also sees the look-alikes just outside the window
+        # (periodic tiles, bricks), and a best match outside the window itself is dropped
+        votes_all = np.abs(wrap_angle(az_r[None, :] - az_q[:, None] - seed[0]))
+        allowed = votes_all <= window + config.inlier_band_rad + config.distinct_margin_rad
         used = allowed.any(axis=0)
-        az_r, desc_r, allowed = az_r[used], desc_r[used], allowed[:, used]
+        az_r, desc_r, allowed, votes_all = az_r[used], desc_r[used], allowed[:, used], votes_all[:, used]
         ranges = None if ranges is None else ranges[used]
     candidates = int(len(az_r))
     qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
+    if window is not None:
+        inside = votes_all[qi, ri] <= window + config.inlier_band_rad
+        qi, ri = qi[inside], ri[inside]
     diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
     if len(qi) < 2:
         return _unreliable(prepared, seed, f"only {len(qi)} matches (need ≥ 2 pairs)", inliers=0, **diag)
@@ -296,10 +316,18 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     resid = np.asarray(wrap_angle(votes[inliers] - theta))
     spread = float(np.sqrt(np.mean(resid**2))) if n_in else math.pi
     n_eff = min(n_in, config.max_effective_inliers)
-    sigma_par = 0.0
     if position is not None and n_in:
         displacement = float(np.hypot(*(np.asarray(position[0]) - prepared.depth.T_world_reference.translation)))
         sigma_par = math.hypot(parallax_sigma(position[1], ranges[ri[inliers]]), config.depth_sigma_rad_per_m * displacement)
+    else:
+        sigma_par = uncorrected_parallax_sigma(
+            hypotheses,
+            prepared.depth,
+            prepared.reference_pose or Pose2(0.0, 0.0, prepared.theta_reference_rad),
+            az_r[ri[inliers]],
+            config.unknown_position_sigma_m,
+            config.default_range_m,
+        )
     sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     ambiguity = runner_up / n_in if n_in else 1.0
@@ -318,6 +346,11 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         problems.append(f"inlier ratio {n_in / len(qi):.2f} < {config.min_inlier_ratio:.2f}")
     if ambiguity >= config.max_ambiguity:
         problems.append(f"ambiguous: a second vote mode has {runner_up} pairs vs {n_in}")
+    h = hypotheses.heading()
+    if h is not None:
+        gap = abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0])))
+        if gap > config.seed_consistency_n_sigma * math.hypot(sigma, h[1]):
+            problems.append(f"{math.degrees(gap):.2f}° from the {h[2]} seed (> {config.seed_consistency_n_sigma:.0f} σ)")
     if sigma > config.max_sigma_rad:
         problems.append(f"σθ2 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
     reliable = not problems

@@ -46,9 +46,9 @@ import numpy as np
 from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses
 from factorloc.estimators.compass import query_strips
-from factorloc.geometry import wrap_angle
+from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
-from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed
+from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
 from factorloc.vision.synth import synthesize
@@ -81,6 +81,9 @@ class CorrelationConfig:
     warp_sigma_rad_per_m
         Model error of the parallax-removing warp per metre between the hypothesised
         position and the reference (coarse depth, non-vertical surfaces), added to σ.
+    unknown_position_sigma_m, default_range_m
+        The parallax σ when it cannot be removed, as for the compass
+        (:func:`factorloc.vision.depth.uncorrected_parallax_sigma`).
     seed_consistency_n_sigma
         Unreliable when θ3 is further than this many combined σ from the seed heading
         (a second alignment inside the window beat the true one).
@@ -103,6 +106,8 @@ class CorrelationConfig:
     max_sigma_rad: float = math.radians(2.0)
     sigma_gain: float = 1.0
     warp_sigma_rad_per_m: float = math.radians(0.25)
+    unknown_position_sigma_m: float = 0.05
+    default_range_m: float = 3.0
     seed_consistency_n_sigma: float = 3.0
     vertical_search_frac: float = 0.1
     parallax_correction: bool = True
@@ -141,6 +146,7 @@ class PreparedCorrelation:
     problem: str | None
     config: CorrelationConfig
     depth: DepthMap | None = None
+    reference_pose: Pose2 = Pose2()
 
 
 def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig()) -> PreparedCorrelation:
@@ -152,7 +158,8 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
     problem = texture_problem(gray)
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
     pyr = _pyramid(gray, grid, config)
-    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], reference.T_world_reference.theta, problem, config, depth)
+    pose = reference.T_world_reference
+    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], pose.theta, problem, config, depth, pose)
 
 
 def _pyramid(gray: np.ndarray, grid: Grid, config: CorrelationConfig) -> dict[str, tuple]:
@@ -371,7 +378,8 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         prepared = dataclasses.replace(prepared, **_pyramid(synth, prepared.grid, config))
     base["parallax_corrected"] = position is not None
     offsets = None
-    n = config.pyramid_steps
+    # after the warp the residual scale is near 1: a narrow pyramid avoids chance matches of small templates
+    n = min(config.pyramid_steps, 1) if position is not None else config.pyramid_steps
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
     curves = [
         cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None
@@ -425,14 +433,22 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         sigma = max(sigma_px * best.beta, best.pixel_rad)
     else:
         sigma = math.pi
-    sigma_par = 0.0
+    view_az = np.asarray(strips[0].azimuth_of_column(np.linspace(0.1, 0.9, 9) * (strips[0].width_px - 1)))
+    sigma_par = uncorrected_parallax_sigma(
+        hypotheses,
+        prepared.depth,
+        prepared.reference_pose,
+        np.asarray(wrap_angle(theta + view_az)),
+        config.unknown_position_sigma_m,
+        config.default_range_m,
+    )
+    sigma = math.hypot(sigma, sigma_par)
     scale_residual = scale
     if position is not None:
         displacement = float(np.hypot(*(np.asarray(position[0]) - prepared.depth.T_world_reference.translation)))
         sigma = math.hypot(sigma, config.warp_sigma_rad_per_m * displacement)
         # the columns the first view covers at θ: their range from the query and magnification vs the reference
-        a = np.asarray(strips[0].azimuth_of_column(np.linspace(0.1, 0.9, 9) * (strips[0].width_px - 1)))
-        cols = np.mod(np.rint(prepared.grid.column_of_azimuth(theta + a)).astype(int), prepared.grid.width_px)
+        cols = np.mod(np.rint(prepared.grid.column_of_azimuth(theta + view_az)).astype(int), prepared.grid.width_px)
         sigma_par = parallax_sigma(position[1], range_m[cols])
         sigma = math.hypot(sigma, sigma_par)
         scale = scale_residual * float(np.median(magnification[cols]))

@@ -140,3 +140,32 @@ def parallax_sigma(sigma_position_m: float, ranges_m: np.ndarray) -> float:
     """Heading σ (rad) a position σ leaves on bearings to points at ``ranges_m``: ``σ_p / median range``."""
     r = float(np.median(ranges_m)) if np.size(ranges_m) else math.inf
     return math.atan(sigma_position_m / max(r, 1e-3))
+
+
+def uncorrected_parallax_sigma(
+    hypotheses,  # noqa: ANN001 - Hypotheses
+    depth: DepthMap | None,
+    T_world_reference: Pose2,
+    azimuth_rad: np.ndarray,
+    unknown_position_sigma_m: float,
+    default_range_m: float,
+) -> float:
+    """Heading σ (rad) from the parallax a heading estimate could *not* correct (0 when it was corrected).
+
+    Without a position hypothesis the query is assumed within ``unknown_position_sigma_m``
+    of the reference; with one but without reference depth, the hypothesised displacement
+    from the reference plus its σ is used. The range is the median reference range behind
+    ``azimuth_rad`` (reference frame) when depth is known, else ``default_range_m``.
+    """
+    pos = position_seed(hypotheses)
+    if pos is not None and depth is not None:
+        return 0.0
+    if pos is None:
+        offset = unknown_position_sigma_m
+    else:
+        offset = float(np.hypot(*(np.asarray(pos[0]) - T_world_reference.translation))) + pos[1]
+    if depth is not None and np.size(azimuth_rad):
+        ranges = depth.range_at(np.asarray(azimuth_rad, dtype=np.float64))
+    else:
+        ranges = np.array([default_range_m])
+    return parallax_sigma(offset, ranges)
