@@ -15,9 +15,15 @@ only match reference points whose vote lies within
 ``±max(min_window_rad, window_n_sigma·σ̂)`` of θ̂, which cuts time and false
 matches; without a seed the whole panorama is searched.
 
-σθ2: the inliers' spread ``s`` gives ``σ² = s²/n_eff + σ_floor²`` with
+σθ2: the inliers' spread ``s`` gives
+``σ² = s²/(n_eff − 1) + band²/n_eff + σ_floor² + σ_parallax²`` with
 ``n_eff = min(n, max_effective_inliers)`` (vote errors from parallax are
-correlated, so more inliers stop helping) and ``σ ≥`` one column's angle.
+correlated, so more inliers stop helping; ``band²/n_eff`` because a few
+coincident votes locate the mode only to about the band over √n), and
+``σ ≥`` one column's angle. ``σ_parallax`` is the position hypothesis's σ
+over the range of the inlier points when the parallax is corrected
+(:mod:`factorloc.vision.depth`), else the parallax an assumed
+displacement could cause.
 The world-frame heading is ``T_world_reference.theta + θ``.
 """
 
@@ -297,11 +303,12 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         # a reference point is a candidate for a query point when its vote falls in the window widened by
         # the distinctiveness margin: the ratio test then also sees the look-alikes just outside the window
         # (periodic tiles, bricks), and a best match outside the window itself is dropped
-        votes_all = np.abs(wrap_angle(az_r[None, :] - az_q[:, None] - seed[0]))
-        allowed = votes_all <= window + config.inlier_band_rad + config.distinct_margin_rad
-        used = allowed.any(axis=0)
-        az_r, desc_r, allowed, votes_all = az_r[used], desc_r[used], allowed[:, used], votes_all[:, used]
+        reach = window + config.inlier_band_rad + config.distinct_margin_rad
+        used = kp.nearest_circular_distance(np.asarray(wrap_angle(az_r - seed[0])), az_q) <= reach
+        az_r, desc_r = az_r[used], desc_r[used]
         ranges = None if ranges is None else ranges[used]
+        votes_all = np.abs(wrap_angle(az_r[None, :] - az_q[:, None] - seed[0]))
+        allowed = votes_all <= reach
     candidates = int(len(az_r))
     qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
     if window is not None:
@@ -328,7 +335,10 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
             config.unknown_position_sigma_m,
             config.default_range_m,
         )
-    sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + config.sigma_floor_rad**2 + sigma_par**2)
+    # spread of the inliers, a cluster term (a few coincident votes locate the mode only to about band/√n),
+    # the floor, and the parallax term
+    sigma_cluster = config.inlier_band_rad / math.sqrt(max(n_eff, 1))
+    sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + sigma_cluster**2 + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     ambiguity = runner_up / n_in if n_in else 1.0
     diag.update(

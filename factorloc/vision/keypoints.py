@@ -136,3 +136,17 @@ def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) 
     far = np.abs(wrap_angle(v - theta)) > 3.0 * band_rad
     runner_up = int(support[far].max()) if far.any() else 0
     return theta, inliers, runner_up
+
+
+def nearest_circular_distance(angles_rad: np.ndarray, targets_rad: np.ndarray) -> np.ndarray:
+    """For each angle, the circular distance (rad) to the nearest of ``targets_rad`` (sorted search, O(n log n))."""
+    a = np.asarray(angles_rad, dtype=np.float64)
+    t = np.sort(np.asarray(wrap_angle(np.asarray(targets_rad, dtype=np.float64))))
+    if t.size == 0:
+        return np.full(a.shape, np.inf)
+    ext = np.concatenate([t[-1:] - 2.0 * math.pi, t, t[:1] + 2.0 * math.pi])
+    aw = np.asarray(wrap_angle(a))
+    k = np.searchsorted(ext, aw)
+    lo = np.abs(aw - ext[np.clip(k - 1, 0, ext.size - 1)])
+    hi = np.abs(ext[np.clip(k, 0, ext.size - 1)] - aw)
+    return np.minimum(lo, hi)

@@ -6,6 +6,7 @@ import math
 
 import cv2
 import numpy as np
+import pytest
 
 from factorloc.vision.keypoints import match, vote_consensus
 
@@ -33,3 +34,10 @@ def test_ratio_test_and_window_mask_restrict_matches() -> None:
     qi, ri = match(query, ref, cv2.NORM_HAMMING, 0.8, allowed)
     assert 1 not in qi.tolist()
     assert qi.tolist() == [0, 2] and ri.tolist() == [3, 11]
+
+
+def test_nearest_circular_distance_wraps_around() -> None:
+    from factorloc.vision.keypoints import nearest_circular_distance
+
+    d = nearest_circular_distance(np.array([3.1, -3.1, 0.0]), np.array([-3.13, 0.5]))
+    assert d == pytest.approx([2 * math.pi - 3.1 - 3.13, 0.03, 0.5], abs=1e-9)
