@@ -148,3 +148,91 @@ def test_config_is_validated() -> None:
         compass.CompassConfig(min_inliers=1)
     with pytest.raises(ConfigError, match="detector"):
         compass.CompassConfig(detector="akaze")
+
+
+# --------------------------------------------------------------------------
+# The simulated apartment: real parallax (queries away from the reference), faults
+# --------------------------------------------------------------------------
+SIM_REF = Pose2(3.0, 2.2, 0.3)
+
+
+@pytest.fixture(scope="module")
+def sim_reference():
+    from factorloc.sim import DepthCamera, apartment, render_cloud_360, render_panorama
+
+    world = apartment()
+    pano = render_panorama(world, SIM_REF, width_px=2048)
+    cloud = render_cloud_360(world, SIM_REF, DepthCamera(stride_px=4), np.random.default_rng(1))
+    ref = Reference(panorama=pano, cloud=cloud, T_world_reference=SIM_REF)
+    return world, ref, compass.prepare(ref)
+
+
+def sim_queries(world, n, d_range_m, sigma_position_m, fault, seed, *, with_hypotheses=True):
+    """``n`` camera queries at free poses ``d_range_m`` from the reference, random headings, with an
+    odometry-like hypothesis (position σ ``sigma_position_m``, heading σ 2°) drawn around the truth."""
+    from factorloc.sim import PinholeCamera, render_camera
+
+    rng = np.random.default_rng(seed)
+    made = 0
+    while made < n:
+        d, a = rng.uniform(*d_range_m), rng.uniform(-math.pi, math.pi)
+        x, y = SIM_REF.x + d * math.cos(a), SIM_REF.y + d * math.sin(a)
+        if not world.is_free(np.array([[x, y]]), 0.4)[0]:
+            continue
+        theta = rng.uniform(-math.pi, math.pi)
+        cam = render_camera(world, Pose2(x, y, theta), PinholeCamera(width_px=320, height_px=240))
+        img = cam.image_bgr
+        if fault == "lighting":
+            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
+                                    blur_sigma_px=0.7, rng=rng)
+        elif fault == "occlusion":
+            img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
+        s_th = math.radians(2.0)
+        odo = Pose2(x + rng.normal(0, sigma_position_m), y + rng.normal(0, sigma_position_m), theta + rng.normal(0, s_th))
+        hyp = Hypotheses((Estimate.pose("odometry", odo, sigma_position_m, sigma_position_m, s_th),))
+        made += 1
+        yield theta, Query(images=(CameraImage(img, cam.hfov_rad),)), (hyp if with_hypotheses else Hypotheses())
+
+
+def _run(reference, prepared, queries):
+    errors, z, reliable = [], [], []
+    for theta, query, hyp in queries:
+        est = compass.estimate(reference, query, hyp, prepared=prepared)
+        reliable.append(est.reliable)
+        if est.reliable:
+            errors.append(_err(est, theta))
+            z.append(_err(est, theta) / est.sigma("theta"))
+    return np.array(errors), np.array(z), float(np.mean(reliable))
+
+
+@pytest.mark.parametrize("fault", ["clean", "lighting", "occlusion"])
+def test_sim_queries_up_to_2m_are_accurate_and_reliable_ones_within_3_sigma(sim_reference, fault) -> None:
+    world, ref, prepared = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 24, (0.0, 2.0), 0.005, fault, seed=10))
+    assert rate >= 0.7, f"{fault}: reliable rate {rate:.2f}"
+    assert np.median(errors) < math.radians(0.5)
+    assert np.sum(z > 3.0) <= 0.01 * len(z), f"{fault}: {np.sum(z > 3)} of {len(z)} reliable estimates off by > 3σ"
+
+
+def test_sim_beyond_2m_degrades_gracefully(sim_reference) -> None:
+    world, ref, prepared = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 16, (2.0, 3.5), 0.005, "clean", seed=11))
+    assert 0.1 <= rate < 0.9  # fewer reliable estimates far away …
+    assert np.all(z <= 3.0)  # … but those are still within 3σ
+
+
+def test_sim_realistic_position_hypothesis_gives_honest_sigma(sim_reference) -> None:
+    world, ref, prepared = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 24, (0.0, 2.0), 0.03, "clean", seed=12))
+    assert rate >= 0.6
+    assert np.median(errors) < math.radians(1.0)
+    assert np.median(z) < 1.5 and np.sum(z > 3.0) <= 1
+
+
+def test_sim_near_the_reference_without_any_hypothesis(sim_reference) -> None:
+    world, ref, prepared = sim_reference
+    queries = sim_queries(world, 12, (0.0, 0.05), 0.005, "clean", seed=13, with_hypotheses=False)
+    errors, z, rate = _run(ref, prepared, queries)
+    assert rate >= 0.6
+    assert np.median(errors) < math.radians(0.5)
+    assert np.all(z <= 3.0)

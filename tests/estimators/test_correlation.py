@@ -160,3 +160,121 @@ def test_config_is_validated() -> None:
         co.CorrelationConfig(min_peak=1.5)
     with pytest.raises(ConfigError, match="pyramid_ratio"):
         co.CorrelationConfig(pyramid_ratio=1.2)
+
+
+# --------------------------------------------------------------------------
+# The simulated apartment: real parallax (queries away from the reference), scale, faults
+# --------------------------------------------------------------------------
+SIM_REF = Pose2(3.0, 2.2, 0.3)  # looks at a wall 2.62 m ahead
+
+
+@pytest.fixture(scope="module")
+def sim_reference():
+    from factorloc.sim import DepthCamera, apartment, render_cloud_360, render_panorama
+
+    world = apartment()
+    pano = render_panorama(world, SIM_REF, width_px=2048)
+    cloud = render_cloud_360(world, SIM_REF, DepthCamera(stride_px=4), np.random.default_rng(1))
+    with_depth = Reference(panorama=pano, cloud=cloud, T_world_reference=SIM_REF)
+    plain = Reference(panorama=pano, T_world_reference=SIM_REF)
+    return world, with_depth, co.prepare(with_depth), plain, co.prepare(plain)
+
+
+def sim_queries(world, n, d_range_m, sigma_position_m, fault, seed):
+    """``n`` camera queries at free poses ``d_range_m`` from the reference, random headings, with an
+    odometry-like hypothesis (position σ ``sigma_position_m``, heading σ 2°) drawn around the truth."""
+    from factorloc.sim import PinholeCamera, render_camera
+
+    rng = np.random.default_rng(seed)
+    made = 0
+    while made < n:
+        d, a = rng.uniform(*d_range_m), rng.uniform(-math.pi, math.pi)
+        x, y = SIM_REF.x + d * math.cos(a), SIM_REF.y + d * math.sin(a)
+        if not world.is_free(np.array([[x, y]]), 0.4)[0]:
+            continue
+        theta = rng.uniform(-math.pi, math.pi)
+        cam = render_camera(world, Pose2(x, y, theta), PinholeCamera(width_px=320, height_px=240))
+        img = cam.image_bgr
+        if fault == "lighting":
+            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
+                                    blur_sigma_px=0.7, rng=rng)
+        elif fault == "occlusion":
+            img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
+        s_th = math.radians(2.0)
+        odo = Pose2(x + rng.normal(0, sigma_position_m), y + rng.normal(0, sigma_position_m), theta + rng.normal(0, s_th))
+        made += 1
+        yield theta, Query(images=(CameraImage(img, cam.hfov_rad),)), Hypotheses(
+            (Estimate.pose("odometry", odo, sigma_position_m, sigma_position_m, s_th),)
+        )
+
+
+def _run(reference, prepared, queries):
+    errors, z, reliable = [], [], []
+    for theta, query, hyp in queries:
+        est = co.estimate(reference, query, hyp, prepared=prepared)
+        reliable.append(est.reliable)
+        if est.reliable:
+            errors.append(_err(est, theta))
+            z.append(_err(est, theta) / est.sigma("theta"))
+    return np.array(errors), np.array(z), float(np.mean(reliable))
+
+
+@pytest.mark.parametrize("fault", ["clean", "lighting", "occlusion"])
+def test_sim_queries_up_to_2m_are_accurate_and_reliable_ones_within_3_sigma(sim_reference, fault) -> None:
+    world, ref, prepared, _, _ = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 24, (0.0, 2.0), 0.005, fault, seed=20))
+    assert rate >= (0.6 if fault != "occlusion" else 0.5), f"{fault}: reliable rate {rate:.2f}"
+    assert np.median(errors) < math.radians(0.5)
+    assert np.sum(z > 3.0) <= 0.01 * len(z), f"{fault}: {np.sum(z > 3)} of {len(z)} reliable estimates off by > 3σ"
+
+
+def test_sim_beyond_2m_degrades_gracefully(sim_reference) -> None:
+    world, ref, prepared, _, _ = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 16, (2.0, 3.5), 0.005, "clean", seed=21))
+    assert 0.1 <= rate < 0.9
+    assert np.all(z <= 3.0)
+
+
+def test_sim_realistic_position_hypothesis_gives_honest_sigma(sim_reference) -> None:
+    world, ref, prepared, _, _ = sim_reference
+    errors, z, rate = _run(ref, prepared, sim_queries(world, 24, (0.0, 2.0), 0.03, "clean", seed=22))
+    assert rate >= 0.5
+    assert np.median(errors) < math.radians(1.0)
+    assert np.median(z) < 1.5 and np.sum(z > 3.0) <= 1
+
+
+def _wall_distance_m(world, pose: Pose2) -> float:
+    from factorloc.sim import render_scan
+
+    pts = render_scan(world, pose, n_beams=720, height_m=1.0).points_m
+    return float(pts[np.argmin(np.abs(np.arctan2(pts[:, 1], pts[:, 0]))), 0])
+
+
+@pytest.mark.parametrize("forward_m", [0.3, 0.6, 1.0])
+def test_sim_moving_towards_a_wall_recovers_the_scale(sim_reference, forward_m) -> None:
+    """The patent's case (claim 6): no position hypothesis, the pyramids find how much closer the robot is."""
+    from factorloc.sim import PinholeCamera, render_camera
+
+    world, _, _, plain, prepared = sim_reference
+    pose = SIM_REF * Pose2(forward_m, 0.0, 0.0)
+    true_scale = _wall_distance_m(world, SIM_REF) / _wall_distance_m(world, pose)
+    cam = render_camera(world, pose, PinholeCamera(width_px=320, height_px=240))
+    est = co.estimate(plain, Query(images=(cam,)), prepared=prepared)
+    assert est.reliable, est.reason
+    assert est.diagnostics["scale"] == pytest.approx(true_scale, rel=0.1)
+    assert _err(est, pose.theta) < math.radians(0.5)
+
+
+def test_sim_scale_with_a_position_hypothesis_combines_warp_and_residual(sim_reference) -> None:
+    from factorloc.sim import PinholeCamera, render_camera
+
+    world, ref, prepared, _, _ = sim_reference
+    pose = SIM_REF * Pose2(0.8, 0.0, 0.0)
+    true_scale = _wall_distance_m(world, SIM_REF) / _wall_distance_m(world, pose)
+    cam = render_camera(world, pose, PinholeCamera(width_px=320, height_px=240))
+    hyp = Hypotheses((Estimate.pose("odometry", pose, 0.01, 0.01, 0.03),))
+    est = co.estimate(ref, Query(images=(cam,)), hyp, prepared=prepared)
+    assert est.reliable and est.diagnostics["parallax_corrected"]
+    assert est.diagnostics["scale"] == pytest.approx(true_scale, rel=0.1)
+    assert est.diagnostics["scale_residual"] == pytest.approx(1.0, abs=0.1)
+    assert _err(est, pose.theta) < math.radians(0.5)
