@@ -261,7 +261,7 @@ def simulate_odometry(
     rng: np.random.Generator | None,
     model: DriftModel = DriftModel(),
     *,
-    n_samples: int = 256,
+    n_samples: int = 128,
 ) -> OdometryRun:
     """Dead-reckon along ``trajectory`` (N×3 true poses) from an exact reset at its first pose.
 
