@@ -38,6 +38,7 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+from scipy.stats import chi2
 
 from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses
@@ -51,7 +52,7 @@ from factorloc.types import Estimate, Query, Reference
 
 log = logging.getLogger(__name__)
 
-__all__ = ["IcpConfig", "IcpReference", "IcpStep", "estimate", "prepare_reference", "query_points"]
+__all__ = ["IcpConfig", "IcpReference", "IcpStep", "constraint_strength", "estimate", "prepare_reference", "query_points"]
 
 _COVARIANCES = ("censi", "hessian", "chamfer")
 
@@ -88,10 +89,12 @@ class IcpConfig:
     covariance_scale
         Calibration factor multiplying the covariance (fitted so that the
         mean NEES is near its degrees of freedom).
-    sigma_bias_m
-        Correlated per-point error spread by the geometry
-        (:func:`~factorloc.registration.covariance.bias_covariance`), added to
-        the position block: what makes the σ along a corridor large.
+    bias_rmse_ratio
+        A correlated per-point error of ``bias_rmse_ratio × rmse`` spread by
+        the geometry (:func:`~factorloc.registration.covariance.bias_covariance`)
+        is added: what makes the σ along a corridor
+        large. Proportional to the fit's RMSE: a sensor or a map that fits
+        worse has larger shared errors.
     sigma_floor_m, sigma_floor_rad
         Added in quadrature: what the formula cannot see (ground-truth and
         timing error, map changes).
@@ -103,8 +106,25 @@ class IcpConfig:
         Reliability test too: at most this fraction of either scan may lie in
         space the other scan's sensor saw empty (free-space consistency, see
         :func:`~factorloc.registration.scan2d.free_space_violation`).
-    violation_weight
-        Global candidates are ranked by ``fitness − violation_weight · violation``.
+    min_constraint
+        Reliability test too: the smallest eigenvalue of the mean normal
+        scatter (:func:`constraint_strength`) must reach this; below it the
+        scan sees essentially one direction of walls and ICP slides.
+    seed_consistency_probability
+        With a reliable position seed, an ICP position outside the seed's
+        region at this probability (χ², 2 dof, seed and ICP covariances
+        summed) is marked unreliable: ICP slid along a weakly constrained
+        direction. Applied only where the geometry allows sliding (constraint
+        strength below ``seed_check_max_constraint``): where the scan
+        constrains every direction, ICP overrides a wrong seed (measured on
+        the Intel log: the odometry was off by 11–20 cm where ICP was right).
+    gap_free_m
+        Bearings without a return inside a scan's field of view are taken as
+        seen free up to this range (0 = unknown); see
+        :func:`~factorloc.registration.scan2d.polar_profile`.
+    violation_weight, min_score
+        Candidates are ranked by the score ``fitness − violation_weight · violation``;
+        a result whose score is below ``min_score`` is unreliable.
     seed_heading_window_rad
         Heading half-window of the global search when a reliable heading
         exists (at least this, or 3σ of that heading); the full circle otherwise.
@@ -125,15 +145,15 @@ class IcpConfig:
     kernel_scale_m: float = 0.05
     global_init: bool = True
     global_search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
-    global_refine: int = 5
+    global_refine: int = 10
     ambiguity_ratio: float = 0.9
     distinct_m: float = 0.3
     distinct_rad: float = math.radians(5.0)
     covariance: str = "censi"
-    covariance_scale: float = 1.5
-    sigma_bias_m: float = 0.01
-    sigma_floor_m: float = 0.005
-    sigma_floor_rad: float = math.radians(0.3)
+    covariance_scale: float = 1.0
+    bias_rmse_ratio: float = 0.15
+    sigma_floor_m: float = 0.001
+    sigma_floor_rad: float = 0.001
     chamfer_scale: float = 0.5
     min_fitness: float = 0.25
     max_rmse_m: float = 0.05
@@ -141,7 +161,12 @@ class IcpConfig:
     max_sigma_position_m: float = 0.25
     max_sigma_heading_rad: float = math.radians(5.0)
     min_inliers: int = 10
-    max_violation: float = 0.1
+    max_violation: float = 0.12
+    min_score: float = 0.4
+    gap_free_m: float = 2.0
+    min_constraint: float = 0.03
+    seed_consistency_probability: float = 0.999
+    seed_check_max_constraint: float = 0.12
     violation_weight: float = 1.0
     seed_heading_window_rad: float = math.radians(10.0)
     seed_radius_margin_m: float = 0.5
@@ -157,9 +182,13 @@ class IcpConfig:
         for name in ("covariance_scale", "chamfer_scale", "distinct_m", "distinct_rad", "seed_heading_window_rad"):
             if not getattr(self, name) > 0.0:
                 raise ConfigError(f"icp.{name} must be > 0, got {getattr(self, name)!r}")
-        for name in ("sigma_floor_m", "sigma_floor_rad", "sigma_bias_m"):
+        for name in ("sigma_floor_m", "sigma_floor_rad", "bias_rmse_ratio", "gap_free_m"):
             if getattr(self, name) < 0.0:
                 raise ConfigError(f"icp.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 < self.seed_consistency_probability < 1.0:
+            raise ConfigError(f"icp.seed_consistency_probability must be in (0, 1), got {self.seed_consistency_probability!r}")
+        if not 0.0 <= self.min_constraint <= 0.5:
+            raise ConfigError(f"icp.min_constraint must be in [0, 0.5], got {self.min_constraint!r}")
         if not 0.0 < self.ambiguity_ratio <= 1.0:
             raise ConfigError(f"icp.ambiguity_ratio must be in (0, 1], got {self.ambiguity_ratio!r}")
         if not 0.0 <= self.min_fitness <= 1.0:
@@ -197,7 +226,7 @@ class IcpReference:
     @cached_property
     def profile(self) -> np.ndarray:
         """Free range per bearing of the reference sensor (see :func:`~factorloc.registration.scan2d.polar_profile`)."""
-        return polar_profile(self.target.points_m)
+        return polar_profile(self.target.points_m, gap_free_m=self.config.gap_free_m)
 
     @cached_property
     def fields(self) -> tuple[LikelihoodField, LikelihoodField]:
@@ -247,10 +276,9 @@ def _covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
     else:
         cov = chamfer_covariance(result, config.chamfer_scale)
     cov = config.covariance_scale * cov
-    if config.sigma_bias_m > 0.0:
-        bias = np.zeros((3, 3))
-        bias[:2, :2] = bias_covariance(result, config.sigma_bias_m)[:2, :2]
-        cov = cov + bias
+    sigma_bias = config.bias_rmse_ratio * result.rmse_m if math.isfinite(result.rmse_m) else 1.0
+    if sigma_bias > 0.0:
+        cov = cov + bias_covariance(result, sigma_bias)
     cov = cov + np.diag([config.sigma_floor_m**2, config.sigma_floor_m**2, config.sigma_floor_rad**2])
     return 0.5 * (cov + cov.T)
 
@@ -262,10 +290,29 @@ def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, 
     return max(v_q, v_r)
 
 
+def constraint_strength(result: IcpResult) -> float:
+    """Smallest eigenvalue of the mean weighted normal scatter ``Σ wᵢ nᵢnᵢᵀ / Σ wᵢ``.
+
+    0 for one wall or a corridor without features, 0.5 for a round room.
+    """
+    w = result.weights
+    if len(w) < 3 or not np.sum(w) > 0.0:
+        return 0.0
+    n = result.jacobians[:, :2]
+    scatter = (n * w[:, None]).T @ n / float(np.sum(w))
+    return float(np.linalg.eigvalsh(scatter)[0])
+
+
 def _judge(result: IcpResult, cov: np.ndarray, config: IcpConfig, violation: float = 0.0) -> _Verdict:
     problems = []
+    strength = constraint_strength(result)
+    if strength < config.min_constraint:
+        problems.append(f"degenerate geometry: constraint {strength:.3f} < {config.min_constraint:.3f} (one wall or a corridor)")
     if violation > config.max_violation:
         problems.append(f"{100 * violation:.0f} % of points in seen-free space > {100 * config.max_violation:.0f} %")
+    score = result.fitness - config.violation_weight * violation
+    if score < config.min_score:
+        problems.append(f"score (fitness − violation) {score:.2f} < {config.min_score:.2f}")
     if result.n_inliers < config.min_inliers:
         problems.append(f"{result.n_inliers} correspondences < {config.min_inliers}")
     if result.fitness < config.min_fitness:
@@ -389,7 +436,7 @@ def estimate(
     violation = 0.0
     n_cands = 0
     seed_reason = ""
-    profile = polar_profile(pts)
+    profile = polar_profile(pts, gap_free_m=config.gap_free_m)
     if seeded:
         T_seed = T_rw * Pose2(pos[0], pos[1], head[0])
         result = align(prepared.target, pts, T_seed, _seeded_params(config, pts, pos, head), kernel)
@@ -437,6 +484,13 @@ def estimate(
         )
     T_world_query = T_wr * result.T_target_source
     cov_world = rotate_covariance(cov, T_wr.theta)
+    seed_d2 = math.nan
+    if pos is not None:
+        e = np.array([T_world_query.x - pos[0], T_world_query.y - pos[1]])
+        seed_d2 = float(e @ np.linalg.solve(cov_world[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2]), e))
+        limit = float(chi2.ppf(config.seed_consistency_probability, 2))
+        if verdict.reliable and seed_d2 > limit and constraint_strength(result) < config.seed_check_max_constraint:
+            verdict = _Verdict(False, f"inconsistent with the {pos[4]} seed: Mahalanobis² {seed_d2:.1f} > {limit:.1f}")
     s_ch = max(config.chamfer_scale * result.chamfer_m, 1e-4)
     diagnostics: dict[str, Any] = {
         "fitness": result.fitness,
@@ -449,6 +503,8 @@ def estimate(
         "used_global_init": used_global,
         "seeded": seeded,
         "violation": violation,
+        "constraint": constraint_strength(result),
+        "seed_mahalanobis2": seed_d2,
         "global_score": score,
         "rival_score": rival,
         "global_candidates": n_cands,

@@ -62,7 +62,7 @@ class GlobalSearchParams:
     fine_resolution_m: float = 0.05
     fine_sigma_m: float = 0.08
     fine_angle_step_rad: float = math.radians(0.5)
-    n_candidates: int = 8
+    n_candidates: int = 10
     separation_m: float = 0.6
     separation_rad: float = math.radians(10.0)
 

@@ -33,8 +33,13 @@ class ScanExtraction:
     Parameters
     ----------
     min_height_m, max_height_m
-        The height band kept (z above the floor, metres). The defaults keep
-        walls and furniture sides and drop the floor (z ≈ 0) and the ceiling.
+        The height band kept (z above the floor, metres). The defaults drop
+        the floor and the ceiling and keep a band that a depth camera at
+        1.0 m with a 45° vertical field of view sees *at every range* from
+        0.4 m on (±0.166 m): a wider band cuts furniture at heights that one
+        view sees and another does not, and ICP then matches different
+        outlines of the same object (measured: a 0.15–1.8 m band slid
+        seeded ICP by up to 0.8 m in the simulated apartment).
     voxel_m
         Side of the 2D voxel grid: one point (the centroid) per occupied cell.
     max_points
@@ -44,8 +49,8 @@ class ScanExtraction:
         Points farther than this from the sensor are dropped (0 = keep all).
     """
 
-    min_height_m: float = 0.15
-    max_height_m: float = 1.8
+    min_height_m: float = 0.85
+    max_height_m: float = 1.15
     voxel_m: float = 0.05
     max_points: int = 1500
     max_range_m: float = 0.0
@@ -170,18 +175,35 @@ def estimate_normals_2d(
     return normals, np.clip(quality, 0.0, 1.0)
 
 
-def polar_profile(points_m: np.ndarray, n_bins: int = 720) -> np.ndarray:
-    """Free range per bearing bin seen from the sensor at the origin: (n_bins,) metres, NaN where no return.
+def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0.0, max_gap_rad: float = 0.35) -> np.ndarray:
+    """Free range per bearing bin seen from the sensor at the origin: (n_bins,) metres, NaN where unknown.
 
     Bin ``k`` covers bearings ``[-π + 2πk/n, -π + 2π(k+1)/n)``; its free range
     is the *shortest* return in it (conservative: space closer than every
-    return of the bin was seen empty by the sensor).
+    return of the bin was seen empty by the sensor). Bins without a return
+    inside an angular gap narrower than ``max_gap_rad`` between returns (a
+    doorway, a window, sparse returns, a beam past the sensor's range) are
+    taken as free up to the nearer of the two returns bounding the gap, at
+    most ``gap_free_m`` (when it is > 0); wider gaps (outside the field of
+    view) stay unknown.
     """
     pts = np.asarray(points_m, dtype=np.float64)
     prof = np.full(n_bins, np.inf)
     if len(pts):
         b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64) % n_bins
         np.minimum.at(prof, b, np.hypot(pts[:, 0], pts[:, 1]))
+    empty = ~np.isfinite(prof)
+    if gap_free_m > 0.0 and empty.any() and not empty.all():
+        # label the circular runs of empty bins and fill the short ones
+        max_bins = int(max_gap_rad / (2 * np.pi) * n_bins)
+        start = int(np.argmin(empty))  # a non-empty bin: runs do not wrap past it
+        rolled = np.roll(empty, -start)
+        edges = np.diff(np.concatenate([[0], rolled.astype(np.int8), [0]]))
+        for a, z in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0], strict=True):
+            if z - a <= max_bins:
+                idx = (np.arange(a, z) + start) % n_bins
+                left, right = prof[(a - 1 + start) % n_bins], prof[(z + start) % n_bins]
+                prof[idx] = min(left, right, gap_free_m)
     prof[~np.isfinite(prof)] = np.nan
     return prof
 
