@@ -155,10 +155,13 @@ def fuse(
 # evaluate
 # ----------------------------------------------------------------------------
 def _num(v: Any, fmt: str, scale: float = 1.0, unit: str = "") -> str:
-    """A figure of the evaluation JSON (``None`` = not applicable) formatted for a table."""
+    """A figure of the evaluation JSON (``None`` = not applicable) formatted for a table; ≥ 100 without decimals."""
     if v is None:
         return "[dim]—[/]"
-    return f"{v * scale:{fmt}}{unit}"
+    x = v * scale
+    if fmt.endswith("f") and abs(x) >= 100.0:
+        fmt = ".0f" if abs(x) < 1e5 else ".1e"
+    return f"{x:{fmt}}{unit}"
 
 
 def _pct(v: Any) -> str:
@@ -178,6 +181,8 @@ def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> 
         title_justify="left",
         header_style="bold",
         box=box.SIMPLE_HEAD,
+        padding=(0, 1),
+        pad_edge=False,
         caption="position in cm, heading θ in degrees; NEES ≈ 3 and conf. wrong ≤ 1 % when the covariance is honest",
         caption_justify="left",
     )
@@ -216,6 +221,8 @@ def evaluation_steps_table(out: dict[str, Any], title: str = "Steps") -> Table:
         title_justify="left",
         header_style="bold",
         box=box.SIMPLE_HEAD,
+        padding=(0, 1),
+        pad_edge=False,
         caption="false +: called reliable but off by more than 3σ",
         caption_justify="left",
     )
@@ -457,10 +464,20 @@ def bench(
 
 def _generated_scenario(queries: int, seed: int) -> Any:
     """A scenario generated in the built-in apartment with the default fault mix, with a progress bar."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
     from factorloc.sim import generate_scenario  # the simulator's generator
 
-    with console.status(f"generating a {queries}-query scenario (seed {seed})…"):
-        return generate_scenario(world="apartment", queries=queries, seed=seed)
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
+        task = bar.add_task(f"generating a scenario (seed {seed})", total=queries)
+        return generate_scenario("apartment", queries, seed, progress=lambda d, t: bar.update(task, completed=d, total=t))
 
 
 # ----------------------------------------------------------------------------
@@ -522,21 +539,56 @@ def simulate(
 # ----------------------------------------------------------------------------
 # demo
 # ----------------------------------------------------------------------------
+def _sample_scenario_dir() -> Path:
+    """The shipped sample scenario: ``data/sample`` or else the first directory of ``data/`` holding a ``scenario.yaml``."""
+    preferred = PACKAGE_DATA / "sample"
+    if (preferred / "scenario.yaml").is_file():
+        return preferred
+    found = sorted(p.parent for p in PACKAGE_DATA.glob("*/scenario.yaml"))
+    if not found:
+        raise InputError(f"no sample scenario (a directory with scenario.yaml) under {PACKAGE_DATA}")
+    return found[0]
+
+
 @app.command()
-def demo() -> None:
-    """The main job on the shipped default data: the patent's worked example, fused both ways."""
-    path = PACKAGE_DATA / "examples" / "patent_example.json"
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Where the figures and the JSON report go.")] = Path("factorloc-demo"),
+) -> None:
+    """The main job on the shipped sample scenario: localize every query, print the figures, draw the plots."""
+    import time
+
+    from factorloc.datasets import load_scenario
+    from factorloc.plotting import save_report_figures
+
+    t0 = time.perf_counter()
     try:
-        ests = _load_estimates(path)
+        path = _sample_scenario_dir()
+        scen = load_scenario(path)
+        n_faulty = sum(1 for q in scen.queries if q.faults)
+        console.rule("[bold]factorloc demo")
+        console.print(
+            f"Scenario [bold]{scen.name}[/] ({path}): {len(scen.queries)} queries against "
+            f"{len(scen.references)} reference(s), {n_faulty} with faults. Each query: "
+            "odometry → virtual compass → panorama correlation → ICP, gated, fused in a GTSAM factor graph."
+        )
+        report = _run_evaluation(scen, None, "localizing")
     except FactorlocError as exc:
         _fail(exc)
         return
-    console.rule("[bold]factorloc demo — the patent's worked example")
-    for strat in (factorloc.ProductFusion(), factorloc.GraphFusion()):
-        loc = factorloc.fuse(ests, strategy=strat)
-        if strat.name == "product":
-            console.print(steps_table(loc, f"Estimates ({path.name})"))
-        console.print(pose_table(loc))
+    res = report.to_json_dict()
+    console.print(evaluation_steps_table(res, "What each step contributed"))
+    console.print(evaluation_summary_table(res, f"Fused pose vs ground truth ({res['strategy']})"))
+    reasons = gate_reasons_text(res, per_step=1)
+    if reasons:
+        console.print(reasons)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "evaluation.json").write_text(json.dumps(res, indent=2, allow_nan=False))
+    paths = save_report_figures(report, out)
+    console.print(
+        f"\n[bold green]✓[/] {len(scen.queries)} queries in {time.perf_counter() - t0:.1f} s. "
+        f"Figures and evaluation.json in [bold]{out}/[/]: {', '.join(p.name for p in paths)}"
+    )
+    console.print("[dim]Next: factorloc evaluate SCENARIO --plot DIR, factorloc simulate, factorloc bench; docs/evaluation.md[/]")
 
 
 if __name__ == "__main__":  # pragma: no cover

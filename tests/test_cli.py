@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 import factorloc
@@ -112,3 +113,15 @@ def test_bench_on_a_tiny_scenario_writes_every_section(tmp_path: Path) -> None:
     assert {"localize", "hierarchy", "icp_vs_open3d", "fusion", "cost_curve"} <= set(out)
     assert out["icp_vs_open3d"]["pairs"] == 2 and out["hierarchy"]["time_ratio"] > 0
     assert "Hierarchy ablation" in result.output
+
+
+@pytest.mark.slow
+def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["demo", "--out", str(tmp_path / "demo")])
+    assert result.exit_code == 0, result.output
+    assert "What each step contributed" in result.output and "Fused pose vs ground truth" in result.output
+    out = json.loads((tmp_path / "demo" / "evaluation.json").read_text())
+    assert out["queries"] == 30 and set(out["steps"]) == {"odometry", "compass", "correlation", "icp"}
+    assert out["steps"]["odometry"]["status_rates"]["skipped"] == 0.0  # every sample query carries odometry
+    assert {p.name for p in (tmp_path / "demo").glob("*.png")} == {
+        "availability.png", "calibration.png", "error_vs_distance.png", "floor_plan.png"}

@@ -322,7 +322,7 @@ class QueryResult:
 
 def _normalize_reason(reason: str) -> str:
     """A reason with its numbers replaced by ``#`` so that equal causes count together."""
-    text = re.sub(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", "#", reason)
+    text = re.sub(r"(?<![^\W\d_])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", "#", reason)  # not "θ2", "χ²"
     return re.sub(r"\s+", " ", text).strip() or "(no reason given)"
 
 
