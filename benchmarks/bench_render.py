@@ -12,15 +12,18 @@ from __future__ import annotations
 import math
 import statistics
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from factorloc import Pose2
+from factorloc.datasets import load_scenario
 from factorloc.sim import (
     DepthCamera,
     PinholeCamera,
     apartment,
+    generate_scenario,
     render_camera,
     render_cloud,
     render_cloud_360,
@@ -75,6 +78,28 @@ def main() -> None:
             print(f"{name:32s} {ms:10.1f} {'-':>14s} {'-':>7s}")
         else:
             print(f"{name:32s} {ms:10.1f} {peer:14.1f} {ms / peer:7.1f}")
+
+    t0 = time.perf_counter()
+    generate_scenario(world, 10, 1)
+    print(f"generate_scenario, 10 queries: {1e3 * (time.perf_counter() - t0) / 10:7.1f} ms per query (incl. the reference once)")
+    sample = Path(__file__).resolve().parents[1] / "data" / "sample"
+    if (sample / "scenario.yaml").is_file():
+        size = sum(f.stat().st_size for f in sample.rglob("*") if f.is_file())
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            s = load_scenario(sample)
+            times.append(time.perf_counter() - t0)
+        files = [f for f in sample.rglob("*") if f.suffix in (".png", ".jpg")]
+        t0 = time.perf_counter()
+        for f in files:
+            cv2.imread(str(f))
+        peer = time.perf_counter() - t0
+        print(
+            f"load_scenario(data/sample): {1e3 * statistics.median(times):7.1f} ms for {len(s.queries)} queries, "
+            f"{size / 1e6:.2f} MB on disk; decoding its {len(files)} images alone: {1e3 * peer:.1f} ms "
+            f"(ratio {statistics.median(times) / peer:.2f})"
+        )
 
 
 if __name__ == "__main__":

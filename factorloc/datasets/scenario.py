@@ -506,11 +506,30 @@ def _frozen_metadata(name: str, value: Any) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
         raise InputError(f"{name} must be a mapping, got {type(value).__name__}")
     plain = _plain(value)
-    try:
-        yaml.safe_dump(plain)
-    except yaml.YAMLError as exc:
-        raise InputError(f"{name} must hold only YAML-able values (numbers, strings, lists, mappings): {exc}") from exc
+    bad = _first_non_yaml(plain)
+    if bad is not None:
+        raise InputError(f"{name} must hold only YAML-able values (numbers, strings, lists, mappings), got {bad!r}")
     return MappingProxyType(plain)
+
+
+def _first_non_yaml(value: Any) -> Any:
+    """The first value in a nested structure that YAML cannot represent, or None."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return None
+    if isinstance(value, list):
+        for v in value:
+            bad = _first_non_yaml(v)
+            if bad is not None:
+                return bad
+        return None
+    if isinstance(value, dict):
+        for k, v in value.items():
+            for item in (k, v):
+                bad = _first_non_yaml(item)
+                if bad is not None:
+                    return bad
+        return None
+    return value
 
 
 def _check_id(name: str, value: Any) -> None:

@@ -615,7 +615,8 @@ def load_world(path: str | Path) -> World:
         raise InputError(f"world file {str(p)!r} does not exist")
     try:
         text = p.read_text(encoding="utf-8")
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.safe_load(text)
+        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.load(text, Loader=loader)  # noqa: S506 - a safe loader
     except (OSError, UnicodeDecodeError, yaml.YAMLError, json.JSONDecodeError) as exc:
         raise InputError(f"world file {str(p)!r} cannot be parsed: {exc}") from exc
     try:
