@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import yaml
 
-from factorloc.datasets import load_scenario, save_scenario
-from factorloc.sim import FAULTS, GeneratorConfig, generate_scenario
+from factorloc.datasets import load_scenario
+from factorloc.sim import FAULTS
 
 SAMPLE = Path(__file__).resolve().parents[2] / "data" / "sample"
 
@@ -41,27 +40,18 @@ def test_sample_is_small() -> None:
     assert size <= 5_000_000
 
 
-def test_simulator_reproduces_the_sample_bit_for_bit(sample, tmp_path: Path) -> None:
-    """Regenerate the reference and three queries from the sample's seed; the files must be identical."""
-    manifest = yaml.safe_load((SAMPLE / "scenario.yaml").read_text())
-    meta = manifest["metadata"]
-    picks = [0, 2, 8]  # a clean query, a kidnapped one, occlusion + depth dropout
-    regen = generate_scenario(
-        "apartment",
-        meta["n_queries"],
-        sample.seed,
-        tuple(meta["faults"]),
-        GeneratorConfig(fault_probability=meta["fault_probability"]),
-        only_queries=picks,
-    )
-    out = save_scenario(regen, tmp_path / "regen", image_format="jpg")
-    assert (out / "world.yaml").read_bytes() == (SAMPLE / "world.yaml").read_bytes()
-    for rel in ("references/ref0/panorama.png", "references/ref0/cloud.npy", "references/ref0/scan.npy"):
-        assert (out / rel).read_bytes() == (SAMPLE / rel).read_bytes(), rel
-    regen_manifest = yaml.safe_load((out / "scenario.yaml").read_text())
-    for i, entry in zip(picks, regen_manifest["queries"], strict=True):
-        assert entry == manifest["queries"][i]
-        qdir = Path("queries") / entry["id"]
-        for f in sorted((out / qdir).iterdir()):
-            assert f.read_bytes() == (SAMPLE / qdir / f.name).read_bytes(), f"{qdir / f.name} differs"
-    assert regen_manifest["references"] == manifest["references"]
+def test_factorloc_simulate_reproduces_the_whole_sample(sample, tmp_path: Path) -> None:
+    """The documented command (data/README.md) rewrites data/sample byte for byte."""
+    from typer.testing import CliRunner
+
+    from factorloc.cli import app
+
+    out = tmp_path / "sample"
+    args = ["simulate", str(out), "--world", "apartment", "--queries", "30", "--seed", "103", "--image-format", "jpg"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    shipped = sorted(p.relative_to(SAMPLE) for p in SAMPLE.rglob("*") if p.is_file())
+    written = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert written == shipped
+    for rel in shipped:
+        assert (out / rel).read_bytes() == (SAMPLE / rel).read_bytes(), f"{rel} differs"
