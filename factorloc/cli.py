@@ -413,7 +413,10 @@ def bench(
     json_out: Annotated[
         Optional[Path], typer.Option("--json", help="Write the figures as JSON (keys in docs/evaluation.md).")
     ] = None,
-    queries: Annotated[int, typer.Option("--queries", min=1, help="Queries of the generated scenario.")] = 200,
+    queries: Annotated[
+        Optional[int],
+        typer.Option("--queries", min=1, help="Queries of the generated scenario (default 200), or the first N of --scenario."),
+    ] = None,
     scenario: Annotated[
         Optional[Path], typer.Option("--scenario", help="Benchmark this scenario directory instead of generating one.")
     ] = None,
@@ -432,8 +435,10 @@ def bench(
             from factorloc.datasets import load_scenario
 
             scen = load_scenario(scenario)
+            if queries is not None:
+                scen = _first_queries(scen, queries)
         else:
-            scen = _generated_scenario(queries, seed)
+            scen = _generated_scenario(200 if queries is None else queries, seed)
         settings = BenchSettings(repeats=repeats, cost_queries=min(20, len(scen.queries)))
         with Progress(
             TextColumn("[bold]{task.description}"),
@@ -460,6 +465,13 @@ def bench(
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(out, indent=2, allow_nan=False))
         console.print(f"[dim]JSON written to {json_out}[/]")
+
+
+def _first_queries(scen: Any, n: int) -> Any:
+    """The scenario restricted to its first ``n`` queries."""
+    from factorloc.datasets import Scenario
+
+    return Scenario(scen.name, scen.references, scen.queries[:n], scen.world, scen.seed, scen.description, scen.metadata)
 
 
 def _generated_scenario(queries: int, seed: int) -> Any:

@@ -595,12 +595,12 @@ class EvaluationReport:
             "latency_p95_ms": latency["p95"],
             "latency_mean_ms": latency["mean"],
             "fusion_latency_median_ms": _ms(np.array([r.strategy_s for r in res]))["median"],
-            "steps": {name: self._step_summary(name, res) for name in self.run.step_names},
+            "steps": {name: self._step_summary(name, res, wrong) for name in self.run.step_names},
         }
         return s
 
     @staticmethod
-    def _step_summary(name: str, res: list[QueryResult]) -> dict[str, Any]:
+    def _step_summary(name: str, res: list[QueryResult], fused_wrong: np.ndarray) -> dict[str, Any]:
         n = len(res)
         reports = [next((r for r in q.reports if r.name == name), None) for q in res]
         status = Counter(r.status.value if r is not None else "absent" for r in reports)
@@ -617,6 +617,7 @@ class EvaluationReport:
             for r, q, ok in zip(reports, res, reliable, strict=True)
             if ok and q.truth is not None
         ]
+        row_query = [i for i, (q, ok) in enumerate(zip(res, reliable, strict=True)) if ok and q.truth is not None]
         if rows:
             vals = np.array([a for a, _, _ in rows])
             covs = np.array([c for _, c, _ in rows])
@@ -628,9 +629,15 @@ class EvaluationReport:
             head = metrics.summarize(metrics.heading_error_rad(err)).scaled(180.0 / math.pi)
             normalized = metrics.normalized_nees_mean(e, k)
             n_wrong = int(np.count_nonzero(wrong))
+            # confidently-wrong fused results to which this step contributed a false positive
+            blame = sum(
+                1
+                for j, w in zip(row_query, wrong, strict=True)
+                if w and fused_wrong[j] and reports[j] is not None and reports[j].status is StepStatus.FUSED
+            )
         else:
             pos = head = metrics.summarize(np.zeros(0))
-            normalized, n_wrong = math.nan, 0
+            normalized, n_wrong, blame = math.nan, 0, 0
         lat = _ms(seconds)
         truth_n = sum(q.truth is not None for q in res)
         return {
@@ -647,4 +654,5 @@ class EvaluationReport:
             "nees_normalized_mean": normalized,
             "false_positive_rate": n_wrong / truth_n if truth_n else math.nan,
             "false_positive_count": n_wrong,
+            "confidently_wrong_blame": blame,
         }

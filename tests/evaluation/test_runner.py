@@ -101,6 +101,7 @@ def test_overconfident_step_shows_in_nees_and_in_its_own_false_positives() -> No
     assert out["nees_mean"] == pytest.approx(27.0, rel=0.2)
     assert out["confidently_wrong_rate"] > 0.4
     assert out["steps"]["icp"]["false_positive_rate"] == pytest.approx(out["confidently_wrong_rate"])
+    assert out["steps"]["icp"]["confidently_wrong_blame"] == out["confidently_wrong_count"]
 
 
 def test_json_has_the_stable_keys_per_fault_and_per_step_and_is_strict_json() -> None:
