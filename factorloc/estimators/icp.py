@@ -34,7 +34,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
@@ -115,9 +115,11 @@ class IcpConfig:
         region at this probability (χ², 2 dof, seed and ICP covariances
         summed) is marked unreliable: ICP slid along a weakly constrained
         direction. Applied only where the geometry allows sliding (constraint
-        strength below ``seed_check_max_constraint``): where the scan
-        constrains every direction, ICP overrides a wrong seed (measured on
-        the Intel log: the odometry was off by 11–20 cm where ICP was right).
+        strength below ``seed_check_max_constraint``) or where the result lies
+        farther than ``3σ + seed_jump_margin_m`` from the seed: where the scan
+        constrains every direction, ICP may correct a seed by a few σ (measured
+        on the Intel log: the odometry was off by 11–20 cm at σ 3–5 cm, and
+        ICP was right), but not jump away from it.
     gap_free_m
         Bearings without a return inside a scan's field of view are taken as
         seen free up to this range (0 = unknown); see
@@ -151,7 +153,7 @@ class IcpConfig:
     distinct_rad: float = math.radians(5.0)
     covariance: str = "censi"
     covariance_scale: float = 1.0
-    bias_rmse_ratio: float = 0.15
+    bias_rmse_ratio: float = 0.2
     sigma_floor_m: float = 0.001
     sigma_floor_rad: float = 0.001
     chamfer_scale: float = 0.5
@@ -167,6 +169,7 @@ class IcpConfig:
     min_constraint: float = 0.03
     seed_consistency_probability: float = 0.999
     seed_check_max_constraint: float = 0.12
+    seed_jump_margin_m: float = 0.25
     violation_weight: float = 1.0
     seed_heading_window_rad: float = math.radians(10.0)
     seed_radius_margin_m: float = 0.5
@@ -332,6 +335,11 @@ def _judge(result: IcpResult, cov: np.ndarray, config: IcpConfig, violation: flo
     return _Verdict(True, f"fitness {result.fitness:.2f}, rmse {100 * result.rmse_m:.1f} cm, σ {100 * s_pos:.1f} cm")
 
 
+@lru_cache(maxsize=16)
+def _chi2_2dof(probability: float) -> float:
+    return float(chi2.ppf(probability, 2))
+
+
 def _seeded_params(config: IcpConfig, points: np.ndarray, pos: tuple, head: tuple) -> IcpParams:
     """ICP parameters whose first correspondence gate matches the seed's 3σ (position and heading at the median range)."""
     rho = float(np.median(np.hypot(points[:, 0], points[:, 1])))
@@ -488,8 +496,9 @@ def estimate(
     if pos is not None:
         e = np.array([T_world_query.x - pos[0], T_world_query.y - pos[1]])
         seed_d2 = float(e @ np.linalg.solve(cov_world[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2]), e))
-        limit = float(chi2.ppf(config.seed_consistency_probability, 2))
-        if verdict.reliable and seed_d2 > limit and constraint_strength(result) < config.seed_check_max_constraint:
+        limit = _chi2_2dof(config.seed_consistency_probability)
+        jump = float(np.hypot(*e)) > config.seed_jump_margin_m + 3.0 * max(pos[2], pos[3])
+        if verdict.reliable and seed_d2 > limit and (jump or constraint_strength(result) < config.seed_check_max_constraint):
             verdict = _Verdict(False, f"inconsistent with the {pos[4]} seed: Mahalanobis² {seed_d2:.1f} > {limit:.1f}")
     s_ch = max(config.chamfer_scale * result.chamfer_m, 1e-4)
     diagnostics: dict[str, Any] = {

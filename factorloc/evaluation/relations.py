@@ -177,7 +177,7 @@ def relations_config(base: Config | None = None) -> Config:
     """The configuration ``ours`` runs with on the laser logs: ``base`` (default :class:`Config`) with
     ``icp.bias_rmse_ratio = 0.5``.
 
-    The library default (0.15) is calibrated on simulated queries, whose
+    The library default (0.2) is calibrated on simulated queries, whose
     truth is exact and whose noise is white. On the relations the error also
     holds the ground truth's own error (the published graph-SLAM solution
     differs from it by 3–4 cm) and correlated real-world effects (sparse

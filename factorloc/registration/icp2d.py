@@ -6,7 +6,9 @@ points ``p_j`` with their line normals ``n_j`` by minimising
     E(T) = Σ_i w_i ρ( n_jᵀ (R q_i + t − p_j) )            (point-to-line, Censi 2008 "PL-ICP"; Chen & Medioni 1992)
 
 over ``T = (t, θ)`` by iteratively reweighted Gauss–Newton, re-associating
-each ``q_i`` to its nearest target point at every iteration. Pairs farther
+each ``q_i`` to its nearest target point at every iteration. A step never
+moves the points by more than the current gate (a trust region: with few or
+nearly collinear points the Gauss–Newton step can otherwise jump metres). Pairs farther
 apart than a gate ``d_k`` are rejected; the gate shrinks geometrically from
 ``max_correspondence_m`` to ``min_correspondence_m`` so that a seed off by a
 few decimetres still converges and the final fit ignores outliers.
@@ -73,8 +75,8 @@ class IcpParams:
     max_correspondence_m: float = 1.0
     min_correspondence_m: float = 0.2
     shrink: float = 0.6
-    convergence_translation_m: float = 1e-4
-    convergence_rotation_rad: float = 1e-5
+    convergence_translation_m: float = 3e-4
+    convergence_rotation_rad: float = 1e-4
     fitness_distance_m: float = 0.1
     chamfer_cap_m: float = 0.5
     normal_k: int = 7
@@ -227,6 +229,7 @@ def align(
     if not isinstance(T_init, Pose2):
         raise InputError(f"T_init must be a Pose2, got {type(T_init).__name__}")
     kernel = Cauchy(0.05) if kernel is None else kernel
+    rho_rms = float(np.sqrt(np.mean(np.sum(src * src, axis=1))))
     var_src = params.sigma_point_m**2 + (params.sigma_bearing_rad * np.hypot(src[:, 0], src[:, 1])) ** 2
     theta = T_init.theta
     t = np.array([T_init.x, T_init.y])
@@ -246,6 +249,10 @@ def align(
             delta = -np.linalg.solve(H + 1e-9 * np.eye(3), g)
         except np.linalg.LinAlgError:
             break
+        # trust region: no step longer than the correspondence gate (a point moves at most ~gate)
+        step = math.hypot(delta[0], delta[1]) + abs(delta[2]) * rho_rms
+        if step > gate:
+            delta = delta * (gate / step)
         # apply: rotate about the source origin t, then translate
         theta += delta[2]
         t = t + delta[:2]

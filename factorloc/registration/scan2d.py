@@ -194,16 +194,15 @@ def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0
         np.minimum.at(prof, b, np.hypot(pts[:, 0], pts[:, 1]))
     empty = ~np.isfinite(prof)
     if gap_free_m > 0.0 and empty.any() and not empty.all():
-        # label the circular runs of empty bins and fill the short ones
-        max_bins = int(max_gap_rad / (2 * np.pi) * n_bins)
-        start = int(np.argmin(empty))  # a non-empty bin: runs do not wrap past it
-        rolled = np.roll(empty, -start)
-        edges = np.diff(np.concatenate([[0], rolled.astype(np.int8), [0]]))
-        for a, z in zip(np.nonzero(edges == 1)[0], np.nonzero(edges == -1)[0], strict=True):
-            if z - a <= max_bins:
-                idx = (np.arange(a, z) + start) % n_bins
-                left, right = prof[(a - 1 + start) % n_bins], prof[(z + start) % n_bins]
-                prof[idx] = min(left, right, gap_free_m)
+        # for every bin, the nearest non-empty bin before and after it (circularly, vectorized)
+        idx = np.arange(3 * n_bins)
+        full = np.tile(~empty, 3)
+        prev = np.maximum.accumulate(np.where(full, idx, -1))[n_bins : 2 * n_bins]
+        nxt = np.minimum.accumulate(np.where(full, idx, 3 * n_bins)[::-1])[::-1][n_bins : 2 * n_bins]
+        gap = nxt - prev - 1
+        fill = empty & (gap <= int(max_gap_rad / (2 * np.pi) * n_bins))
+        bound = np.minimum(prof[prev % n_bins], prof[nxt % n_bins])
+        prof = np.where(fill, np.minimum(bound, gap_free_m), prof)
     prof[~np.isfinite(prof)] = np.nan
     return prof
 
