@@ -301,3 +301,25 @@ def test_reference_property_needs_exactly_one_reference() -> None:
     with pytest.raises(InputError, match="2 references"):
         _ = two.reference
     assert two.reference_of(two.queries[0]) is s.reference
+
+
+def test_clouds_may_be_npz_or_ply(saved: Path) -> None:
+    import open3d as o3d
+
+    pts = np.load(saved / "queries/q000/cloud.npy")
+    np.savez_compressed(saved / "queries/q000/cloud.npz", points_m=pts)
+    q2 = np.load(saved / "queries/q002/cloud.npy")
+    pc2 = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(q2.astype(np.float64)))
+    o3d.io.write_point_cloud(str(saved / "queries/q002/cloud.ply"), pc2)
+
+    def edit(m: dict) -> None:
+        m["queries"][0]["cloud"]["file"] = "queries/q000/cloud.npz"
+        m["queries"][2]["cloud"]["file"] = "queries/q002/cloud.ply"
+
+    _edit_manifest(saved, edit)
+    loaded = load_scenario(saved)
+    assert np.array_equal(loaded.queries[0].query.cloud.points_m, pts.astype(np.float64))
+    assert np.allclose(loaded.queries[2].query.cloud.points_m, q2, atol=1e-6)
+    np.savez(saved / "queries/q000/cloud.npz", other=pts)
+    with pytest.raises(DatasetError, match="has no array 'points_m'"):
+        load_scenario(saved)
