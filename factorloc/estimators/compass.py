@@ -97,6 +97,9 @@ class CompassConfig:
         Seeded search: look-alikes this far beyond the window still take part in the ratio test.
     seed_consistency_n_sigma
         Unreliable when θ2 is further than this many combined σ from the seed heading.
+    record_pairs
+        Put every matched pair ``[az_ref, el_ref, az_query]`` (rad; reference and query robot
+        frames, before parallax correction) in ``diagnostics["pairs_rad"]`` (for evaluation).
     """
 
     enabled: bool = True
@@ -111,16 +114,17 @@ class CompassConfig:
     min_inliers: int = 8
     min_inlier_ratio: float = 0.1
     max_ambiguity: float = 0.5
-    max_sigma_rad: float = math.radians(2.0)
+    max_sigma_rad: float = math.radians(5.0)
     sigma_floor_rad: float = math.radians(0.1)
     max_effective_inliers: int = 30
     parallax_correction: bool = True
     camera_height_m: float = 1.0
     depth_sigma_rad_per_m: float = math.radians(0.15)
-    unknown_position_sigma_m: float = 0.05
+    unknown_position_sigma_m: float = 0.3
     default_range_m: float = 3.0
     distinct_margin_rad: float = math.radians(30.0)
     seed_consistency_n_sigma: float = 3.0
+    record_pairs: bool = False
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -291,6 +295,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     az_q = np.concatenate(az_q_list)
     desc_q = np.concatenate(desc_list)
     az_r, desc_r = prepared.azimuth_rad, prepared.descriptors
+    ref_index = np.arange(len(az_r))
     position = position_seed(hypotheses) if prepared.depth is not None else None
     ranges = None
     if position is not None:
@@ -305,7 +310,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         # (periodic tiles, bricks), and a best match outside the window itself is dropped
         reach = window + config.inlier_band_rad + config.distinct_margin_rad
         used = kp.nearest_circular_distance(np.asarray(wrap_angle(az_r - seed[0])), az_q) <= reach
-        az_r, desc_r = az_r[used], desc_r[used]
+        az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
         ranges = None if ranges is None else ranges[used]
         votes_all = np.abs(wrap_angle(az_r[None, :] - az_q[:, None] - seed[0]))
         allowed = votes_all <= reach
@@ -317,6 +322,9 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
     if len(qi) < 2:
         return _unreliable(prepared, seed, f"only {len(qi)} matches (need ≥ 2 pairs)", inliers=0, **diag)
+    if config.record_pairs:
+        k = ref_index[ri]
+        diag["pairs_rad"] = np.column_stack([prepared.azimuth_rad[k], prepared.elevation_rad[k], az_q[qi]]).tolist()
     votes = np.asarray(wrap_angle(az_r[ri] - az_q[qi]), dtype=np.float64)
     theta, inliers, runner_up = kp.vote_consensus(votes, config.inlier_band_rad)
     n_in = int(inliers.sum())

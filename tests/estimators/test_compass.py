@@ -16,6 +16,12 @@ from factorloc.sim import photo
 PHOTOS = {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}
 
 
+def at(reference: Reference, sigma_m: float = 0.01) -> Hypotheses:
+    """A position hypothesis: the robot stands where the reference was taken (± ``sigma_m``)."""
+    p = reference.T_world_reference
+    return Hypotheses((Estimate.position("odometry", p.x, p.y, sigma_m, sigma_m),))
+
+
 def _err(est: Estimate, truth: float) -> float:
     return abs(math.remainder(est.value("theta") - truth, 2 * math.pi))
 
@@ -57,7 +63,7 @@ def test_heading_on_real_photos_is_accurate_and_never_confidently_wrong(real, fa
     rng = np.random.default_rng([len(name), ["clean", "lighting", "occlusion"].index(fault)])
     errors, z, reliable = [], [], []
     for heading, cam in _views(eq, 12, rng, fault):
-        est = compass.estimate(ref, Query(images=(cam,)), prepared=prepared)
+        est = compass.estimate(ref, Query(images=(cam,)), at(ref), prepared=prepared)
         reliable.append(est.reliable)
         if est.reliable:
             errors.append(_err(est, heading))
@@ -71,9 +77,9 @@ def test_seeding_by_theta1_shrinks_the_candidate_set_and_keeps_the_answer(synthe
     eq, ref, prepared = synthetic
     cam = photo.camera_view(eq, 1.0, 0.2, width_px=320, height_px=240)
     q = Query(images=(cam,))
-    blind = compass.estimate(ref, q, prepared=prepared)
+    blind = compass.estimate(ref, q, at(ref), prepared=prepared)
     theta_world = 0.4 + 1.0
-    seed = Hypotheses((Estimate.heading("odometry", theta_world + 0.02, 0.03),))
+    seed = Hypotheses((Estimate.pose("odometry", Pose2(2.0, -1.0, theta_world + 0.02), 0.01, 0.01, 0.03),))
     seeded = compass.estimate(ref, q, seed, prepared=prepared)
     assert blind.reliable and seeded.reliable
     assert not blind.diagnostics["seeded"] and seeded.diagnostics["seeded"]
@@ -95,10 +101,10 @@ def test_several_images_and_a_query_panorama_across_the_seam(synthetic) -> None:
     eq, ref, prepared = synthetic
     heading = math.pi - 0.05  # the front camera straddles azimuth ±π of the reference
     cams = tuple(photo.camera_view(eq, heading, yaw, math.radians(60), 200, 150) for yaw in (-2.1, 0.0, 2.1))
-    est = compass.estimate(ref, Query(images=cams), prepared=prepared)
+    est = compass.estimate(ref, Query(images=cams), at(ref), prepared=prepared)
     assert est.reliable and _err(est, 0.4 + heading) < math.radians(0.3)
     pano_q = photo.panorama_view(eq, heading, 800, 200, math.radians(70))
-    est = compass.estimate(ref, Query(panorama=pano_q), prepared=prepared)
+    est = compass.estimate(ref, Query(panorama=pano_q), at(ref), prepared=prepared)
     assert est.reliable and _err(est, 0.4 + heading) < math.radians(0.3)
 
 
@@ -106,7 +112,7 @@ def test_orb_detector_also_works(synthetic) -> None:
     eq, ref, _ = synthetic
     cfg = compass.CompassConfig(detector="orb")
     cam = photo.camera_view(eq, -2.0, 0.3, width_px=320, height_px=240)
-    est = compass.estimate(ref, Query(images=(cam,)), config=cfg)
+    est = compass.estimate(ref, Query(images=(cam,)), at(ref), config=cfg)
     assert est.reliable and est.diagnostics["detector"] == "orb"
     assert _err(est, 0.4 - 2.0) < math.radians(0.3)
 
@@ -229,10 +235,10 @@ def test_sim_realistic_position_hypothesis_gives_honest_sigma(sim_reference) -> 
     assert np.median(z) < 1.5 and np.sum(z > 3.0) <= 1
 
 
-def test_sim_near_the_reference_without_any_hypothesis(sim_reference) -> None:
+def test_sim_without_a_position_hypothesis_sigma_covers_an_unknown_displacement(sim_reference) -> None:
+    """No hypothesis at all: the robot is assumed within 0.3 m of the reference, so σ is several degrees."""
     world, ref, prepared = sim_reference
-    queries = sim_queries(world, 12, (0.0, 0.05), 0.005, "clean", seed=13, with_hypotheses=False)
-    errors, z, rate = _run(ref, prepared, queries)
-    assert rate >= 0.6
-    assert np.median(errors) < math.radians(0.5)
-    assert np.all(z <= 3.0)
+    for theta, query, _ in sim_queries(world, 8, (0.0, 1.0), 0.005, "clean", seed=13):
+        est = compass.estimate(ref, query, prepared=prepared)
+        assert est.sigma("theta") > math.radians(4.0)
+        assert not est.reliable or _err(est, theta) <= 3.0 * est.sigma("theta")
