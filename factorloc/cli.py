@@ -159,6 +159,8 @@ def _num(v: Any, fmt: str, scale: float = 1.0, unit: str = "") -> str:
     if v is None:
         return "[dim]—[/]"
     x = v * scale
+    if fmt == "d":
+        return f"{int(round(x))}{unit}"
     if fmt.endswith("f") and abs(x) >= 100.0:
         fmt = ".0f" if abs(x) < 1e5 else ".1e"
     return f"{x:{fmt}}{unit}"
@@ -459,11 +461,12 @@ def bench(
     except FactorlocError as exc:
         _fail(exc)
         return
-    for t in bench_tables(out):
-        console.print(t)
     if json_out is not None:
         json_out.parent.mkdir(parents=True, exist_ok=True)
         json_out.write_text(json.dumps(out, indent=2, allow_nan=False))
+    for t in bench_tables(out):
+        console.print(t)
+    if json_out is not None:
         console.print(f"[dim]JSON written to {json_out}[/]")
 
 

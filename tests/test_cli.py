@@ -125,3 +125,29 @@ def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path:
     assert out["steps"]["odometry"]["status_rates"]["skipped"] == 0.0  # every sample query carries odometry
     assert {p.name for p in (tmp_path / "demo").glob("*.png")} == {
         "availability.png", "calibration.png", "error_vs_distance.png", "floor_plan.png"}
+
+
+def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> None:
+    from rich.console import Console
+
+    from factorloc.cli import bench_tables
+
+    point = {"factor": 1.0, "panorama_width_px": 2048, "reference_cloud_points": 10240, "reference_scan_points": 360,
+             "query_cloud_points_median": 4800.0, "median_ms": 25.5, "steps_median_ms": {"icp": 3.25}}
+    out = {
+        "scenario": "s", "queries": 1,
+        "localize": {"repeats": 1, "median_ms": 25.5, "p95_ms": 30.0, "mean_ms": 26.0, "steps": {}},
+        "hierarchy": {"seeded": {"median_ms": 10.0, "false_positive_count": 0, "steps_false_positive_count": {},
+                                 "steps_reliable_rate": {}, "confidently_wrong_rate": 0.0},
+                      "blind": {"median_ms": 40.0, "false_positive_count": 3, "steps_false_positive_count": {},
+                                "steps_reliable_rate": {}, "confidently_wrong_rate": 0.1},
+                      "time_ratio": 4.0, "false_positive_ratio": 3.0, "false_positive_ratio_is_lower_bound": True},
+        "icp_vs_open3d": {"pairs": 0}, "fusion": {"queries": 0},
+        "cost_curve": {"points": [point, {**point, "factor": 2.0, "panorama_width_px": 4096, "median_ms": 51.0}],
+                       "exponent": 1.0, "steps_exponent": {"icp": 1.0}},
+    }
+    console = Console(width=100, record=True)
+    for t in bench_tables(out):
+        console.print(t)
+    text = console.export_text()
+    assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text
