@@ -24,7 +24,12 @@ coincident votes locate the mode only to about the band over √n), and
 over the range of the inlier points when the parallax is corrected
 (:mod:`factorloc.vision.depth`), else the parallax an assumed
 displacement could cause.
-The world-frame heading is ``T_world_reference.theta + θ``.
+Parallax (an extension of the patent): with a reference cloud or scan and a
+position hypothesis, each reference point's azimuth is replaced by its
+bearing from the hypothesised position (:mod:`factorloc.vision.depth`)
+before voting; without a position hypothesis the query is assumed within
+``unknown_position_sigma_m`` of the reference. The world-frame heading is
+``T_world_reference.theta + θ``.
 """
 
 from __future__ import annotations

@@ -30,6 +30,17 @@ Seeded by the latest reliable heading θ̂ ± σ̂ (θ2, else θ1) the search is
 limited to ``θ̂ ± max(min_window_rad, window_n_sigma·σ̂)``; without a seed the
 whole panorama is searched. The world-frame heading is
 ``T_world_reference.theta + θ``.
+
+Parallax (an extension of the patent): a query away from the reference sees
+near surfaces turned by up to ``atan(d/D)``. When the reference carries a
+cloud or a scan and a position hypothesis exists, the reference is first
+re-rendered from the hypothesised position (:mod:`factorloc.vision.synth`),
+the pyramid is then narrowed to one step each way (the residual scale is
+near 1), and σ gains the position's ``σ_p / range`` and a warp model term
+growing with the displacement; the reported ``scale`` is then the residual
+scale times the warp's magnification (``scale_residual`` holds the former).
+Without a position hypothesis the query is assumed within
+``unknown_position_sigma_m`` of the reference and σ covers that parallax.
 """
 
 from __future__ import annotations
