@@ -120,17 +120,26 @@ def _arrow(ax: Axes, pose: Pose2, length: float, color: str, **kwargs: Any) -> N
 
 
 def plot_estimates_on_axes(
-    ax: Axes, report: EvaluationReport, *, confidence: float = 0.95, arrow_m: float = 0.25, ellipse_scale: float = 1.0
+    ax: Axes,
+    report: EvaluationReport,
+    *,
+    confidence: float = 0.95,
+    arrow_m: float = 0.25,
+    ellipse_scale: float = 1.0,
+    max_scaled_m: float | None = None,
 ) -> Axes:
     """True poses (blue dots, heading arrows), estimates (red crosses) and their ``confidence`` ellipses.
 
     A grey line joins each estimate to its truth; queries whose position is
     under-determined show their truth only (hollow marker). The reference
     poses are black stars. ``ellipse_scale`` magnifies the ellipses (cm-sized
-    ellipses are invisible on a 10 m plan); the legend states it.
+    ellipses are invisible on a 10 m plan); the legend states it. An ellipse
+    whose magnified major half-axis would exceed ``max_scaled_m`` is drawn at
+    its true size, dashed.
     """
     refs = [r.T_world_reference for r in report.run.dataset.references.values()]
     tx, ty, ex, ey, ux, uy = [], [], [], [], [], []
+    dashed = False
     for r in report.results:
         det = r.determined
         if r.truth is not None:
@@ -146,9 +155,13 @@ def plot_estimates_on_axes(
             ey.append(r.pose.y)
             if r.truth is not None:
                 ax.plot([r.truth.x, r.pose.x], [r.truth.y, r.pose.y], color="#777777", lw=0.6, zorder=2)
-            plot_covariance_ellipse_on_axes(
-                ax, (r.pose.x, r.pose.y), (ellipse_scale**2) * r.covariance[:2, :2], confidence, zorder=4
-            )
+            cov2 = r.covariance[:2, :2]
+            half_major = 0.5 * covariance_ellipse(cov2, confidence)[0]
+            if ellipse_scale != 1.0 and max_scaled_m is not None and ellipse_scale * half_major > max_scaled_m:
+                plot_covariance_ellipse_on_axes(ax, (r.pose.x, r.pose.y), cov2, confidence, zorder=4, ls="--", lw=0.7)
+                dashed = True
+            else:
+                plot_covariance_ellipse_on_axes(ax, (r.pose.x, r.pose.y), (ellipse_scale**2) * cov2, confidence, zorder=4)
     ax.scatter(tx, ty, s=14, color=TRUTH_COLOR, label="true pose", zorder=5)
     if ux:
         ax.scatter(ux, uy, s=18, facecolors="none", edgecolors=TRUTH_COLOR, label="true pose (position undetermined)", zorder=5)
@@ -156,6 +169,8 @@ def plot_estimates_on_axes(
     ax.scatter([p.x for p in refs], [p.y for p in refs], s=140, marker="*", color="black", label="reference", zorder=7)
     scale = "" if ellipse_scale == 1.0 else f" ×{ellipse_scale:g}"
     ax.plot([], [], color=ESTIMATE_COLOR, lw=1.0, label=f"{100 * confidence:.0f} % ellipse{scale}")
+    if dashed:
+        ax.plot([], [], color=ESTIMATE_COLOR, lw=0.7, ls="--", label=f"{100 * confidence:.0f} % ellipse, true size")
     ax.set_aspect("equal")
     ax.legend(loc="best", fontsize="small", framealpha=0.9)
     return ax
@@ -166,7 +181,8 @@ def floor_plan_figure(
 ) -> Figure:
     """The floor plan (``world``, default the report's) with true/estimated poses and ellipses.
 
-    ``ellipse_scale`` defaults to a factor that makes the median ellipse ~2 % of the plan's size (≥ 1).
+    ``ellipse_scale`` defaults to a factor (1, 2, 5, 10, …) that makes the median ellipse
+    ~2 % of the plan's size; ellipses that would then exceed 10 % are drawn at true size, dashed.
     """
     world = world if world is not None else report.run.dataset.world
     fig = Figure(figsize=(9.0, 7.0), layout="constrained")
@@ -175,24 +191,33 @@ def floor_plan_figure(
         plot_world_on_axes(ax, world)
     if ellipse_scale is None:
         ellipse_scale = _auto_ellipse_scale(report, world)
-    plot_estimates_on_axes(ax, report, confidence=confidence, ellipse_scale=ellipse_scale)
+    size = _plan_size(report, world)
+    plot_estimates_on_axes(ax, report, confidence=confidence, ellipse_scale=ellipse_scale, max_scaled_m=0.05 * size)
+    if world is not None:  # the plan, not the ellipses, sets the view
+        x0, y0, x1, y1 = world.bounds_xy
+        margin = 0.05 * size
+        ax.set_xlim(x0 - margin, x1 + margin)
+        ax.set_ylim(y0 - margin, y1 + margin)
     ax.set_title(f"{report.name}: true and estimated poses ({report.strategy})")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     return fig
 
 
+def _plan_size(report: EvaluationReport, world: World | None) -> float:
+    """The larger side (m) of the world's bounds, or of the true poses' spread (≥ 1 m)."""
+    if world is not None:
+        x0, y0, x1, y1 = world.bounds_xy
+        return max(x1 - x0, y1 - y0)
+    pts = np.array([[r.truth.x, r.truth.y] for r in report.results if r.truth is not None] or [[0.0, 0.0]])
+    return max(float(np.ptp(pts[:, 0])), float(np.ptp(pts[:, 1])), 1.0)
+
+
 def _auto_ellipse_scale(report: EvaluationReport, world: World | None) -> float:
     sig = [math.sqrt(max(np.linalg.eigvalsh(r.covariance[:2, :2])[-1], 0.0)) for r in report.results if r.determined[:2].all()]
     if not sig:
         return 1.0
-    if world is not None:
-        x0, y0, x1, y1 = world.bounds_xy
-        size = max(x1 - x0, y1 - y0)
-    else:
-        pts = np.array([[r.truth.x, r.truth.y] for r in report.results if r.truth is not None] or [[0.0, 0.0]])
-        size = max(float(np.ptp(pts[:, 0])), float(np.ptp(pts[:, 1])), 1.0)
-    target = 0.01 * size  # half-width ≈ 1 % of the plan
+    target = 0.01 * _plan_size(report, world)  # half-width ≈ 1 % of the plan
     med = float(np.median(sig)) * math.sqrt(chi2.ppf(0.95, 2))
     if med <= 0.0 or med >= target:
         return 1.0
