@@ -29,7 +29,7 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.scan2d import voxel_downsample_2d
 
-__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "search"]
+__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "reference_fields", "search"]
 
 
 @dataclass(frozen=True)
