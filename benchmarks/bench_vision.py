@@ -19,7 +19,10 @@ queries whose best peak is more than 3° from the truth), reliable rate,
 median / 95th percentile heading error of the reliable estimates (deg), and the
 confidently-wrong rate (reliable and off by > 3σ).
 
-Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N]``. Prints figures; asserts nothing.
+With ``--sim N`` it also prints the accuracy table in the simulated apartment (N queries per
+distance band / position σ / fault).
+
+Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N]``. Prints figures; asserts nothing.
 """
 
 from __future__ import annotations
@@ -121,9 +124,7 @@ def bench_sample(max_queries: int) -> None:
         def pair_truth(pairs: np.ndarray, truth=truth) -> np.ndarray:  # noqa: ANN001
             # the exact vote of each pair: the reference point (from the reference cloud) seen from the true position
             world, _ = pc.depth.world_headings(pairs[:, 0], pairs[:, 2], (truth.x, truth.y), pairs[:, 1])
-            return np.abs(np.asarray([math.remainder(w - truth.theta, 2 * math.pi) for w in world])) <= math.radians(
-                PAIR_TOLERANCE_DEG
-            )
+            return np.abs(np.mod(world - truth.theta + math.pi, 2 * math.pi) - math.pi) <= math.radians(PAIR_TOLERANCE_DEG)
 
         ec, t = _timed(c_step.estimate, pc, q, hyp)
         tallies["compass seeded"].add(ec, truth.theta, t, pair_truth)
@@ -185,11 +186,71 @@ def bench_real(n_views: int) -> None:
             print(tally.row(f"correlation {mode}"))
 
 
+def bench_sim_accuracy(n: int) -> None:
+    """Accuracy in the simulated apartment (parallax!), per distance band, position σ and fault."""
+    from factorloc import Pose2
+    from factorloc.sim import DepthCamera, PinholeCamera, apartment, photo, render_camera, render_cloud_360, render_panorama
+
+    world = apartment()
+    t_ref = Pose2(3.0, 2.2, 0.3)
+    pano = render_panorama(world, t_ref, width_px=2048)
+    cloud = render_cloud_360(world, t_ref, DepthCamera(stride_px=4), np.random.default_rng(1))
+    ref = Reference(panorama=pano, cloud=cloud, T_world_reference=t_ref)
+    cc = compass.CompassConfig(record_pairs=True)
+    pc, pr = compass.prepare(ref, cc), correlation.prepare(ref)
+    print(f"\n== simulated apartment, reference {t_ref}, {n} camera queries (320×240) per row; hypotheses: odometry pose "
+          "with position σ as given and heading σ 2°; the correlation also gets the compass ==")
+    print(HEADER)
+    cases = [
+        ((0.0, 2.0), 0.005, "clean"),
+        ((0.0, 2.0), 0.005, "lighting"),
+        ((0.0, 2.0), 0.005, "occlusion"),
+        ((0.0, 2.0), 0.03, "clean"),
+        ((2.0, 3.5), 0.005, "clean"),
+    ]
+    for (d_lo, d_hi), s_p, fault in cases:
+        rng = np.random.default_rng(7)
+        tc, tr = Tally(), Tally()
+        made = 0
+        while made < n:
+            d, a = rng.uniform(d_lo, d_hi), rng.uniform(-math.pi, math.pi)
+            x, y = t_ref.x + d * math.cos(a), t_ref.y + d * math.sin(a)
+            if not world.is_free(np.array([[x, y]]), 0.4)[0]:
+                continue
+            theta = rng.uniform(-math.pi, math.pi)
+            cam = render_camera(world, Pose2(x, y, theta), PinholeCamera(width_px=320, height_px=240))
+            img = cam.image_bgr
+            if fault == "lighting":
+                gain, gamma = rng.uniform(0.6, 1.4), rng.uniform(0.75, 1.3)
+                img = photo.photometric(img, gain=gain, gamma=gamma, noise_sigma=4.0, blur_sigma_px=0.7, rng=rng)
+            elif fault == "occlusion":
+                img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
+            odo = Pose2(x + rng.normal(0, s_p), y + rng.normal(0, s_p), theta + rng.normal(0, math.radians(2.0)))
+            hyp = Hypotheses((Estimate.pose("odometry", odo, s_p, s_p, math.radians(2.0)),))
+            q = Query(images=(CameraImage(img, cam.hfov_rad),))
+            ec, t = _timed(compass.estimate, ref, q, hyp, cc, prepared=pc)
+
+            def pair_truth(pairs: np.ndarray, x=x, y=y, theta=theta) -> np.ndarray:  # noqa: ANN001
+                world_h, _ = pc.depth.world_headings(pairs[:, 0], pairs[:, 2], (x, y), pairs[:, 1])
+                return np.abs(np.mod(world_h - theta + math.pi, 2 * math.pi) - math.pi) <= math.radians(PAIR_TOLERANCE_DEG)
+
+            tc.add(ec, theta, t, pair_truth)
+            er, t = _timed(correlation.estimate, ref, q, hyp.plus(ec), prepared=pr)
+            tr.add(er, theta, t)
+            made += 1
+        label = f"{d_lo:.0f}–{d_hi:.1f} m σp {100 * s_p:.1f} cm {fault}"
+        print(tc.row(f"compass {label}"))
+        print(tr.row(f"correl. {label}"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=30, help="queries of the sample scenario (default: all 30)")
     parser.add_argument("--views", type=int, default=20, help="views per real panorama")
+    parser.add_argument("--sim", type=int, default=0, help="also measure accuracy on N simulated queries per condition")
     args = parser.parse_args()
+    if args.sim > 0:
+        bench_sim_accuracy(args.sim)
     if (SAMPLE / "scenario.yaml").is_file():
         bench_sample(args.queries)
     else:
