@@ -102,6 +102,11 @@ class CompassConfig:
         Seeded search: look-alikes this far beyond the window still take part in the ratio test.
     seed_consistency_n_sigma
         Unreliable when θ2 is further than this many combined σ from the seed heading.
+    resection, depth_relative_sigma
+        With a position hypothesis and reference depth, refine heading *and* position from the
+        inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
+        heading's marginal σ (features at several depths and directions separate a turn from a
+        sideways shift); ``depth_relative_sigma`` is the relative error of the reference ranges.
     record_pairs
         Put every matched pair ``[az_ref, el_ref, az_query]`` (rad; reference and query robot
         frames, before parallax correction) in ``diagnostics["pairs_rad"]`` (for evaluation).
@@ -130,6 +135,8 @@ class CompassConfig:
     distinct_margin_rad: float = math.radians(30.0)
     seed_consistency_n_sigma: float = 3.0
     record_pairs: bool = False
+    resection: bool = True
+    depth_relative_sigma: float = 0.05
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -353,6 +360,23 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     sigma_cluster = config.inlier_band_rad / math.sqrt(max(n_eff, 1))
     sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + sigma_cluster**2 + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
+    resected = None
+    if position is not None and config.resection and n_in >= config.min_inliers:
+        k = ref_index[ri[inliers]]
+        resected = resect(
+            prepared.depth,
+            prepared.azimuth_rad[k],
+            prepared.elevation_rad[k],
+            az_q[qi[inliers]],
+            Pose2(position[0][0], position[0][1], prepared.theta_reference_rad + theta),
+            position[1],
+            prepared.grid.rad_per_px,
+            config,
+        )
+        if resected is not None:
+            theta = float(wrap_angle(resected[0] - prepared.theta_reference_rad))
+            sigma = max(math.hypot(resected[1], config.sigma_floor_rad), prepared.grid.rad_per_px)
+            diag["resection_position_m"] = [resected[2][0], resected[2][1]]
     ambiguity = runner_up / n_in if n_in else 1.0
     diag.update(
         inliers=n_in,
@@ -381,6 +405,71 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     return Estimate.heading(
         STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag
     )
+
+
+def resect(
+    depth: DepthMap,
+    az_ref_rad: np.ndarray,
+    el_ref_rad: np.ndarray,
+    az_query_rad: np.ndarray,
+    T_world_seed: Pose2,
+    sigma_position_m: float,
+    pixel_rad: float,
+    config: CompassConfig,
+) -> tuple[float, float, tuple[float, float]] | None:
+    """Heading (and position) from bearings to known points, with a position prior (Gauss–Newton).
+
+    Model: the query at world ``(x, y)`` with heading θ sees the reference point
+    ``P_i`` (from ``depth``) at robot azimuth ``az_query_i``:
+    ``atan2(P_i,y − y, P_i,x − x) − θ = az_query_i + ε_i``, with
+    ``σ(ε_i)² = pixel² + (depth_relative_sigma · D_i · sin Δ_i / r_i)²`` (a range error
+    along the reference ray, seen from the query at angle Δ_i and range r_i), and the
+    prior ``(x, y) ~ N(seed, σ_p² I)``. Bearings further than 3σ from the solution are
+    dropped once. The measurement information is scaled by
+    ``min(1, max_effective_inliers / n)`` (correlated errors).
+
+    Returns
+    -------
+    (theta_world_rad, sigma_theta_rad, (x_m, y_m)) or None
+        None when fewer than ``min_inliers`` bearings remain or the system is singular.
+    """
+    pts = depth.world_points(az_ref_rad, el_ref_rad)
+    ranges_ref = depth.range_at(az_ref_rad, el_ref_rad)
+    az_ref_world = depth.T_world_reference.theta + np.asarray(az_ref_rad)
+    ref_dir = np.column_stack([np.cos(az_ref_world), np.sin(az_ref_world)])
+    prior = np.array([T_world_seed.x, T_world_seed.y])
+    state = np.array([T_world_seed.x, T_world_seed.y, T_world_seed.theta])
+    keep = np.ones(len(pts), dtype=bool)
+    info_prior = np.diag([1.0 / sigma_position_m**2, 1.0 / sigma_position_m**2, 0.0])
+    cov = None
+    for it in range(8):
+        d = pts - state[:2]
+        r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-6)
+        r = np.sqrt(r2)
+        bearing = np.arctan2(d[:, 1], d[:, 0])
+        res = np.asarray(wrap_angle(bearing - state[2] - az_query_rad))
+        sin_delta = np.abs(ref_dir[:, 0] * d[:, 1] - ref_dir[:, 1] * d[:, 0]) / r
+        var = pixel_rad**2 + (config.depth_relative_sigma * ranges_ref * sin_delta / r) ** 2
+        if it == 4:  # drop outlying bearings once, then re-converge
+            keep &= np.abs(res) <= 3.0 * np.sqrt(var)
+        n = int(keep.sum())
+        if n < config.min_inliers:
+            return None
+        jac = np.column_stack([d[:, 1] / r2, -d[:, 0] / r2, -np.ones(len(d))])
+        w = keep / var * min(1.0, config.max_effective_inliers / n)
+        h = (jac * w[:, None]).T @ jac + info_prior
+        g = (jac * w[:, None]).T @ res + info_prior @ np.append(state[:2] - prior, 0.0)
+        try:
+            step = np.linalg.solve(h, -g)
+            cov = np.linalg.inv(h)
+        except np.linalg.LinAlgError:
+            return None
+        state = state + step
+        if np.all(np.abs(step) < 1e-7):
+            break
+    if cov is None or not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
+        return None
+    return float(wrap_angle(state[2])), float(math.sqrt(cov[2, 2])), (float(state[0]), float(state[1]))
 
 
 class CompassStep:
