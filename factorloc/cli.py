@@ -338,7 +338,7 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
     )
     lb = "≥ " if h["false_positive_ratio_is_lower_bound"] else ""
     t2.add_row(
-        "false positives (reliable, > 3σ)",
+        "false positives of seeded steps",
         str(s["false_positive_count"]),
         str(b["false_positive_count"]),
         f"{lb}{h['false_positive_ratio']:.1f}×" if h["false_positive_ratio"] is not None else "—",
