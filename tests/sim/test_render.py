@@ -272,3 +272,17 @@ def test_scan_points_lie_on_walls() -> None:
     pts = np.column_stack([pose.transform_points(scan.points_m), np.full(len(scan), 0.3)])
     assert len(scan) > 600
     assert _surface_distance(apartment(), pts).max() < 2e-5
+
+
+def test_bad_sensor_inputs_are_refused_with_the_field_named() -> None:
+    w = apartment()
+    with pytest.raises(InputError, match="sensor height 3.0 m"):
+        render_panorama(w, Pose2(2.6, 2.2, 0.0), height_m=3.0)
+    with pytest.raises(InputError, match="camera must be a PinholeCamera"):
+        render_camera(w, Pose2(2.6, 2.2, 0.0), DepthCamera())
+    with pytest.raises(InputError, match="T_world_robot must be a Pose2"):
+        render_cloud(w, (2.6, 2.2, 0.0))
+    with pytest.raises(InputError, match="DepthCamera.max_range_m"):
+        DepthCamera(min_range_m=2.0, max_range_m=1.0)
+    with pytest.raises(InputError, match="PinholeCamera.hfov_rad"):
+        PinholeCamera(hfov_rad=4.0)
