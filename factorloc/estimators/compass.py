@@ -136,7 +136,7 @@ class CompassConfig:
     seed_consistency_n_sigma: float = 3.0
     record_pairs: bool = False
     resection: bool = True
-    depth_relative_sigma: float = 0.05
+    depth_relative_sigma: float = 0.1
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -375,7 +375,9 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         )
         if resected is not None:
             theta = float(wrap_angle(resected[0] - prepared.theta_reference_rad))
-            sigma = max(math.hypot(resected[1], config.sigma_floor_rad), prepared.grid.rad_per_px)
+            # the cluster term stays: a few bearings on depth edges of the coarse depth map mislead
+            sigma = math.sqrt(resected[1] ** 2 + sigma_cluster**2 + config.sigma_floor_rad**2)
+            sigma = max(sigma, prepared.grid.rad_per_px)
             diag["resection_position_m"] = [resected[2][0], resected[2][1]]
     ambiguity = runner_up / n_in if n_in else 1.0
     diag.update(
