@@ -586,6 +586,7 @@ class EvaluationReport:
             "heading_determined_rate": _rate(det[:, 2], n),
             "determined_rate": _rate(det.all(axis=1), n),
             "nees_mean": metrics.nees_mean(e[truth], k[truth]) if n else math.nan,
+            "nees_median": float(np.median(e[full & np.isfinite(e)])) if np.any(full & np.isfinite(e)) else math.nan,
             "nees_normalized_mean": metrics.normalized_nees_mean(e[truth], k[truth]) if n else math.nan,
             "nees_count": int(np.count_nonzero(full & np.isfinite(e))) if n else 0,
             "outside_99_rate": _rate(outside & scored, int(scored.sum())),

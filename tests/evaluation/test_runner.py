@@ -88,6 +88,7 @@ def test_a_calibrated_hierarchy_scores_its_expected_accuracy_and_nees() -> None:
     assert out["position_rmse_m"] == pytest.approx(math.sqrt(2) * s_xy, rel=0.1)
     assert out["heading_rmse_deg"] == pytest.approx(math.degrees(s_th), rel=0.1)
     assert out["nees_mean"] == pytest.approx(3.0, abs=0.4)
+    assert out["nees_median"] == pytest.approx(2.366, abs=0.4)
     assert out["confidently_wrong_rate"] < 0.03 and out["outside_99_rate"] < 0.03
     assert out["queries"] == 300 and out["nees_count"] == 300
     assert out["steps"]["icp"]["reliable_rate"] == 1.0 and out["steps"]["icp"]["fused_rate"] == 1.0
