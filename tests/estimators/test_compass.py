@@ -259,7 +259,7 @@ def test_resection_recovers_heading_and_position_from_exact_bearings() -> None:
     seed = Pose2(truth.x + 0.15, truth.y - 0.1, truth.theta + 0.05)
     cfg = compass.CompassConfig()
     theta, sigma, (x, y) = compass.resect(depth, az_ref, np.zeros_like(az_ref), az_q, seed, 0.3, grid.rad_per_px, cfg)
-    assert abs(math.remainder(theta - truth.theta, 2 * math.pi)) < 1e-6
+    assert abs(math.remainder(theta - truth.theta, 2 * math.pi)) < 1e-4
     assert math.hypot(x - truth.x, y - truth.y) < 1e-3  # the prior pulls the MAP by a hair
     # bearings all round pin the heading far better than the 0.3 m prior alone (0.3 m / 2 m ≈ 8.6°) would
     assert sigma < math.radians(0.5)
