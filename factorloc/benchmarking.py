@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -519,6 +520,7 @@ def run_bench(
         return runs
 
     t_start = time.perf_counter()
+    load_before = _load_average()
     seeded = passes("seeded", True)
     blind = passes("blind", False)
     out: dict[str, Any] = {
@@ -542,7 +544,22 @@ def run_bench(
     out["cost_curve"] = bench_cost_curve(data, cfg, settings=replace(settings), progress=progress)
     out["peak_memory_mb"] = seeded[0].peak_memory_mb
     out["wall_seconds"] = time.perf_counter() - t_start
+    out["machine"] = {
+        "cpu_count": os.cpu_count(),
+        "usable_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "load_average_1min_before": load_before,
+        "load_average_1min_after": _load_average(),
+        "opencv_threads": cv2.getNumThreads(),
+    }
     return _json_safe(out)
+
+
+def _load_average() -> float:
+    """The 1-minute load average (nan where the platform has none): other work competing for the CPU."""
+    try:
+        return float(os.getloadavg()[0])
+    except (AttributeError, OSError):
+        return math.nan
 
 
 def _json_safe(v: Any) -> Any:
