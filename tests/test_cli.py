@@ -151,3 +151,14 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
         console.print(t)
     text = console.export_text()
     assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text
+
+
+def test_evaluate_uses_the_given_config(tmp_path: Path) -> None:
+    scen = _room_scenario(tmp_path / "room", n=2)
+    (tmp_path / "c.yaml").write_text("compass:\n  enabled: false\ncorrelation:\n  enabled: false\nfusion:\n  strategy: product\n")
+    result = runner.invoke(app, ["evaluate", str(scen), "--config", str(tmp_path / "c.yaml"), "--json", str(tmp_path / "o.json")])
+    assert result.exit_code == 0, result.output
+    out = json.loads((tmp_path / "o.json").read_text())
+    assert list(out["steps"]) == ["odometry", "icp"] and out["strategy"] == "product"
+    bad = runner.invoke(app, ["evaluate", str(scen), "--config", str(tmp_path / "none.yaml")])
+    assert bad.exit_code == 2 and "config file not found" in bad.output
