@@ -460,7 +460,7 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         sigma = math.hypot(sigma, config.warp_sigma_rad_per_m * displacement)
         # the columns the first view covers at θ: their range from the query and magnification vs the reference
         cols = np.mod(np.rint(prepared.grid.column_of_azimuth(theta + view_az)).astype(int), prepared.grid.width_px)
-        sigma_par = parallax_sigma(position[1], range_m[cols])
+        sigma_par = parallax_sigma(position[1], np.percentile(range_m[cols], 25))
         sigma = math.hypot(sigma, sigma_par)
         scale = scale_residual * float(np.median(magnification[cols]))
     diag = dict(
