@@ -34,8 +34,8 @@ import numpy as np
 from factorloc._validate import nonnegative_float, positive_float
 from factorloc.config import GatingConfig
 from factorloc.errors import InputError
-from factorloc.geometry import Pose2, rot2
 from factorloc.gating import consistency_gate
+from factorloc.geometry import Pose2, rot2
 from factorloc.types import FULL, Component, Estimate, Query, StepReport
 
 #: Name of the odometry step, whose absolute estimate is replaced by the motion.
@@ -135,7 +135,9 @@ def prior_estimate(pose: Pose2, covariance: np.ndarray, name: str = "prediction"
     return Estimate(name, FULL, pose.as_array(), cov)
 
 
-def compose_with_covariance(pose: Pose2, covariance: np.ndarray, delta: Pose2, delta_covariance: np.ndarray) -> tuple[Pose2, np.ndarray]:
+def compose_with_covariance(
+    pose: Pose2, covariance: np.ndarray, delta: Pose2, delta_covariance: np.ndarray
+) -> tuple[Pose2, np.ndarray]:
     """EKF prediction of ``pose ∘ delta`` and its world-frame covariance ``F P Fᵀ + G Q Gᵀ``.
 
     ``covariance`` is world-frame (x, y, θ); ``delta_covariance`` is in the

@@ -68,7 +68,9 @@ class ExtendedKalmanFilter:
 
     name = "ekf"
 
-    def __init__(self, motion: MotionModel = MotionModel(), gating: GatingConfig | None = GatingConfig(), continuous: bool = True) -> None:
+    def __init__(
+        self, motion: MotionModel = MotionModel(), gating: GatingConfig | None = GatingConfig(), continuous: bool = True
+    ) -> None:
         if not isinstance(motion, MotionModel):
             raise InputError(f"motion must be a MotionModel, got {type(motion).__name__}")
         self.motion = motion

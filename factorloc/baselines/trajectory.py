@@ -63,7 +63,9 @@ def _waypoint(world: World, ref: Pose2, here: np.ndarray, rng: np.random.Generat
     raise InputError(f"no reachable free waypoint within {max_d} m of the reference from {here.tolist()} in world '{world.name}'")
 
 
-def _leg(world: World, ref: Pose2, start: Pose2, length_m: float, rng: np.random.Generator, max_d: float, cl: float) -> np.ndarray:
+def _leg(
+    world: World, ref: Pose2, start: Pose2, length_m: float, rng: np.random.Generator, max_d: float, cl: float
+) -> np.ndarray:
     """A waypoint path of at least ``length_m`` from ``start`` (N×3, a few cm apart)."""
     wps: list = [start]
     here = start.translation
@@ -143,7 +145,9 @@ def generate_trajectory_scenario(
     cl = config.clearance_m
 
     # kidnap points split the run into legs; each leg is a continuous path
-    cuts = sorted(rng.choice(np.arange(max(1, n_queries // 4), n_queries), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    cuts = (
+        sorted(rng.choice(np.arange(max(1, n_queries // 4), n_queries), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    )
     bounds = [0, *cuts, n_queries]
     truths: list[Pose2] = []
     odos: list[Odometry] = []
@@ -193,7 +197,9 @@ def generate_trajectory_scenario(
         meta: dict = {}
         occluders = ()
         if "occlusion" in tags:
-            occluders = place_occluders(world, truth, qrng, n=int(qrng.integers(1, 3)), view_yaw_rad=float(config.image_yaws_rad[0]))
+            occluders = place_occluders(
+                world, truth, qrng, n=int(qrng.integers(1, 3)), view_yaw_rad=float(config.image_yaws_rad[0])
+            )
         glass: tuple[int, ...] = ()
         if "glass" in tags:
             f = most_seen_face(world, truth, config.depth_camera.yaw_in_robot_rad)
@@ -243,7 +249,11 @@ def generate_trajectory_scenario(
             f"one continuous trajectory in world '{world.name}' by factorloc.baselines.trajectory."
             f"generate_trajectory_scenario(n_queries={n_queries}, seed={seed}, kidnaps={kidnaps})"
         ),
-        metadata={"generator": "factorloc.baselines.generate_trajectory_scenario", "continuous_odometry": True, "spacing_m": spacing_m},
+        metadata={
+            "generator": "factorloc.baselines.generate_trajectory_scenario",
+            "continuous_odometry": True,
+            "spacing_m": spacing_m,
+        },
     )
 
 

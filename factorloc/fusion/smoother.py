@@ -52,7 +52,7 @@ from factorloc.fusion.base import Fused
 from factorloc.fusion.graph import factors_for
 from factorloc.fusion.product import ProductFusion
 from factorloc.geometry import Pose2, rotate_covariance
-from factorloc.types import Component, Estimate, Query, StepReport
+from factorloc.types import Component, Query, StepReport
 
 log = logging.getLogger(__name__)
 
@@ -156,8 +156,10 @@ class TrajectorySmoother:
             accepted, _ = gated(reliable, self.gating)
         if not linked:
             self.chains += 1
-            start = ProductFusion().fuse(accepted).pose if accepted else (
-                query.odometry.T_world_robot if query.odometry is not None else Pose2()
+            start = (
+                ProductFusion().fuse(accepted).pose
+                if accepted
+                else (query.odometry.T_world_robot if query.odometry is not None else Pose2())
             )
             values.insert(key, start.to_gtsam())
             has_pos, has_head = full_pose_mask(accepted)
@@ -188,6 +190,20 @@ class TrajectorySmoother:
         """The smoothed estimate of every pose still in the smoother, oldest first."""
         est = self._isam.calculateEstimate()
         return [Pose2.from_gtsam(est.atPose2(k)) for k in self.keys if est.exists(k)]
+
+    def smoothed(self) -> list[tuple[Pose2, np.ndarray]]:
+        """Smoothed pose and world-frame marginal covariance of every pose (after the last update), oldest first.
+
+        Only :class:`TrajectorySmoother` keeps every pose; the fixed-lag variant has marginalized the old ones.
+        """
+        est = self._isam.calculateEstimate()
+        out = []
+        for k in self.keys:
+            if not est.exists(k):
+                raise InputError(f"pose {k} was marginalized out by the fixed-lag smoother; use TrajectorySmoother")
+            pose = Pose2.from_gtsam(est.atPose2(k))
+            out.append((pose, rotate_covariance(np.asarray(self._isam.marginalCovariance(k)), pose.theta)))
+        return out
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(motion={self.motion!r})"
@@ -234,4 +250,33 @@ class FixedLagSmoother(TrajectorySmoother):
         return f"FixedLagSmoother(lag={self.lag})"
 
 
-__all__ = ["FixedLagSmoother", "PLACEHOLDER_SIGMA", "TrajectorySmoother"]
+def smoothed_report(run, smoother: TrajectorySmoother | None = None):  # noqa: ANN001, ANN201 - HierarchyRun -> EvaluationReport
+    """Evaluate the *offline* (fully smoothed) trajectory of ``run``, with the keys of :func:`factorloc.evaluation.evaluate`.
+
+    :func:`~factorloc.evaluation.evaluate` scores what a sequential strategy
+    answers at each query (online: only the past is known). After the last
+    query, the smoother re-estimates every pose with all the evidence, past
+    and future; this report scores those poses and their marginal
+    covariances. Latencies are the online updates' (the final re-estimation is not included).
+    The strategy is named ``"<name>_offline"``.
+    """
+    from dataclasses import replace
+
+    from factorloc.evaluation.runner import EvaluationReport, evaluate
+
+    sm = smoother or TrajectorySmoother()
+    online = evaluate(run, sm)
+    poses = sm.smoothed()
+    results = []
+    for r, (pose, cov) in zip(online.results, poses, strict=True):
+        c = np.array(cov)
+        for i, bad in enumerate(np.diag(c) > 0.25 * PLACEHOLDER_SIGMA**2):
+            if bad:
+                c[i, :] = 0.0
+                c[:, i] = 0.0
+                c[i, i] = np.inf
+        results.append(replace(r, pose=pose, covariance=c))
+    return EvaluationReport(run, f"{sm.name}_offline", tuple(results))
+
+
+__all__ = ["FixedLagSmoother", "PLACEHOLDER_SIGMA", "TrajectorySmoother", "smoothed_report"]
