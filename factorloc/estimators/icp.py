@@ -454,7 +454,9 @@ def estimate(
         seed_reason = f"seeded by {pos[4]}/{head[2]}"
         if not verdict.reliable:
             log.debug("seeded ICP unreliable (%s)", verdict.reason)
-    if not verdict.reliable and config.global_init:
+    # a seeded failure due to degenerate geometry is not cured by searching elsewhere: the scan is the same
+    degenerate = result is not None and constraint_strength(result) < config.min_constraint
+    if not verdict.reliable and config.global_init and not degenerate:
         radius = config.global_search.radius_m
         if pos is not None:
             center_w = np.array([pos[0], pos[1]])

@@ -1,0 +1,104 @@
+"""The relations benchmark on fixed subsets of the Intel and ACES logs: ours against odometry and Open3D on the
+same pairs and seeds (the full table comes from ``benchmarks/bench_icp.py``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factorloc.datasets.rosbag import read_laser_log
+from factorloc.errors import DatasetError, InputError
+from factorloc.evaluation.relations import (
+    METHODS,
+    Relations,
+    format_table,
+    read_relations,
+    relations_benchmark,
+    summarize,
+)
+
+
+@pytest.fixture(scope="module")
+def laser_dir() -> Path:
+    d = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "laser"
+    if not (d / "intel.sort.bag").is_file():
+        pytest.skip(f"laser logs not available at {d}")
+    return d
+
+
+def _rows(laser_dir: Path, name: str, every_local: int, every_loop: int) -> list[dict]:
+    """Every ``every_local``-th local relation and every ``every_loop``-th loop relation (loops are slow)."""
+    log = read_laser_log(laser_dir / f"{name}.sort.bag")
+    rel = read_relations(laser_dir / f"{name}.relations")
+    path = np.array([log.odometry.distance_between(a, b)[0] for a, b in zip(rel.t1_s, rel.t2_s, strict=True)])
+    idx = np.concatenate([np.nonzero(path < 5.0)[0][::every_local], np.nonzero(path >= 5.0)[0][::every_loop]])
+    sub = Relations(rel.t1_s[idx], rel.t2_s[idx], rel.poses[idx])
+    return summarize(relations_benchmark(log, sub), name)
+
+
+def _get(rows: list[dict], method: str, subset: str) -> dict:
+    return next(r for r in rows if r["method"] == method and r["subset"] == subset)
+
+
+@pytest.fixture(scope="module")
+def intel(laser_dir: Path) -> list[dict]:
+    return _rows(laser_dir, "intel", 15, 60)
+
+
+@pytest.fixture(scope="module")
+def aces(laser_dir: Path) -> list[dict]:
+    return _rows(laser_dir, "aces", 12, 30)
+
+
+pytestmark = pytest.mark.slow  # ~25 s: real scans, 139 Intel and 102 ACES relations, 24 of them loops
+
+
+def test_table_has_every_method_and_subset(intel: list[dict]) -> None:
+    assert {(r["method"], r["subset"]) for r in intel} == {(m, s) for m in METHODS for s in ("local", "loop", "all")}
+    text = format_table(intel)
+    for m in METHODS:
+        assert m in text
+
+
+@pytest.mark.parametrize("dataset", ["intel", "aces"])
+def test_local_relations_beat_open3d_point_to_plane(dataset: str, request: pytest.FixtureRequest) -> None:
+    rows = request.getfixturevalue(dataset)
+    ours, peer, odom = _get(rows, "ours", "local"), _get(rows, "open3d_p2plane", "local"), _get(rows, "odometry", "local")
+    icp = _get(rows, "ours_icp", "local")
+    assert ours["trans_mean_cm"] < 0.8 * peer["trans_mean_cm"]  # the issue's target: at least 20 % below
+    assert icp["rot_mean_deg"] < 0.4
+    assert icp["recovered_rate"] > 0.9  # the ICP estimate itself within 10 cm and 1°
+    assert ours["trans_mean_cm"] < (0.6 if dataset == "intel" else 1.1) * odom["trans_mean_cm"]  # ACES' odometry is good locally
+    assert ours["rot_mean_deg"] < 0.45
+    assert ours["reliable_rate"] > 0.95
+
+
+def test_loop_relations_are_recovered_by_global_initialization_or_flagged(intel: list[dict]) -> None:
+    ours, icp, peer = _get(intel, "ours", "loop"), _get(intel, "ours_icp", "loop"), _get(intel, "open3d_p2plane", "loop")
+    assert peer["recovered_rate"] < 0.05  # trusting the odometry seed fails on loops
+    assert icp["recovered_rate"] > 0.7
+    assert ours["unrecovered_flagged_rate"] > 0.8
+    assert ours["confidently_wrong_rate"] < 0.06
+
+
+def test_icp_covariance_on_local_relations_is_near_calibrated(intel: list[dict], aces: list[dict]) -> None:
+    for rows in (intel, aces):
+        icp = _get(rows, "ours_icp", "local")
+        assert 0.5 < icp["nees_icp_mean"] < 4.0
+        assert icp["confidently_wrong_rate"] < 0.05
+
+
+def test_relations_reader_and_subset_reject_bad_input(tmp_path: Path) -> None:
+    p = tmp_path / "r.relations"
+    p.write_text("1.0 2.0 0.1 0.2 0 0 0 0.3\n3.0 4.0 0.5 0.6 0 0 0 -0.1\n")
+    rel = read_relations(p)
+    assert isinstance(rel, Relations)
+    np.testing.assert_allclose(rel.poses, [[0.1, 0.2, 0.3], [0.5, 0.6, -0.1]])
+    assert len(rel.subset(2)) == 1
+    with pytest.raises(InputError, match="every"):
+        rel.subset(0)
+    p.write_text("1 2 3\n")
+    with pytest.raises(DatasetError, match="8 columns"):
+        read_relations(p)
