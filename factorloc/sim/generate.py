@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -223,8 +223,6 @@ def generate_query(
     if "blur" in tags:
         blur = (float(rng.uniform(6.0, 20.0)), float(rng.uniform(-0.3, 0.3)))
         meta["blur"] = {"length_px": blur[0], "angle_rad": blur[1]}
-    from dataclasses import replace
-
     for yaw in cfg.image_yaws_rad:
         cam = replace(cfg.camera, yaw_in_robot_rad=float(yaw))
         im = render_camera(world, truth, cam, occluders=occluders)
