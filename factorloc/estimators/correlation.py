@@ -35,8 +35,9 @@ Parallax (an extension of the patent): a query away from the reference sees
 near surfaces turned by up to ``atan(d/D)``. When the reference carries a
 cloud or a scan and a position hypothesis exists, the reference is first
 re-rendered from the hypothesised position (:mod:`factorloc.vision.synth`),
-the pyramid is then narrowed to one step each way (the residual scale is
-near 1), and σ gains the position's ``σ_p / range`` and a warp model term
+the pyramids are then skipped (the warp already applies each column's
+magnification; small residual scales only blur the peak, and small templates
+of the coarse levels matched by chance), and σ gains the position's ``σ_p / range`` and a warp model term
 growing with the displacement; the reported ``scale`` is then the residual
 scale times the warp's magnification (``scale_residual`` holds the former).
 Without a position hypothesis the query is assumed within
@@ -81,8 +82,10 @@ class CorrelationConfig:
         Downscaling ratio per step, in (0, 1).
     min_peak
         The threshold Ct in [−1, 1] the peak correlation must reach.
-    ambiguity_margin
-        Ambiguous (unreliable) when a separated secondary peak is within this of the best.
+    ambiguity_margin, ambiguity_noise_gain
+        Ambiguous (unreliable) when a separated secondary peak is within
+        ``ambiguity_margin + ambiguity_noise_gain·(1 − peak)`` of the best peak (a weak peak
+        is noisy, so it must stand out more).
     window_n_sigma, min_window_rad
         Seeded search half-window ``max(min_window_rad, window_n_sigma·σ)``.
     max_sigma_rad
@@ -112,6 +115,7 @@ class CorrelationConfig:
     pyramid_ratio: float = 0.85
     min_peak: float = 0.6
     ambiguity_margin: float = 0.08
+    ambiguity_noise_gain: float = 0.3
     window_n_sigma: float = 3.0
     min_window_rad: float = math.radians(5.0)
     max_sigma_rad: float = math.radians(5.0)
@@ -389,8 +393,8 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         prepared = dataclasses.replace(prepared, **_pyramid(synth, prepared.grid, config))
     base["parallax_corrected"] = position is not None
     offsets = None
-    # after the warp the residual scale is near 1: a narrow pyramid avoids chance matches of small templates
-    n = min(config.pyramid_steps, 1) if position is not None else config.pyramid_steps
+    # after the warp the residual scale is near 1: no pyramid (small templates of coarse levels match by chance)
+    n = 0 if position is not None else config.pyramid_steps
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
     curves = [
         cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None
@@ -480,8 +484,9 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     problems = []
     if peak < config.min_peak:
         problems.append(f"peak {peak:.3f} < Ct {config.min_peak:.3f}")
-    if second is not None and peak - second < config.ambiguity_margin:
-        problems.append(f"ambiguous: secondary peak {second:.3f} within {config.ambiguity_margin:.3f} of {peak:.3f}")
+    needed = config.ambiguity_margin + config.ambiguity_noise_gain * (1.0 - peak)
+    if second is not None and peak - second < needed:
+        problems.append(f"ambiguous: secondary peak {second:.3f} within {needed:.3f} of {peak:.3f}")
     if at_edge:
         problems.append("peak on the edge of the seeded window")
     if h is not None:
