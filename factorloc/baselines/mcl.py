@@ -108,6 +108,9 @@ class MonteCarloLocalization:
         Whether consecutive queries share one odometry run.
     seed
         Seed of the random generator.
+    trust_verdicts
+        True (default): the estimates their estimator judged reliable; False: every estimate
+        (the robust sensor model and the random particles alone deal with the wrong ones).
     """
 
     def __init__(
@@ -122,6 +125,7 @@ class MonteCarloLocalization:
         truncate_sigma: float = 4.0,
         continuous: bool = True,
         seed: int = 0,
+        trust_verdicts: bool = True,
     ) -> None:
         if isinstance(n_particles, bool) or not isinstance(n_particles, int) or n_particles < 10:
             raise InputError(f"n_particles must be an integer >= 10, got {n_particles!r}")
@@ -143,7 +147,8 @@ class MonteCarloLocalization:
         self.truncate_sigma = float(truncate_sigma)
         self.seed = int(seed)
         self.link = OdometryLink(continuous)
-        self.name = f"mcl_{n_particles}"
+        self.trust_verdicts = bool(trust_verdicts)
+        self.name = f"mcl_{n_particles}" + ("" if trust_verdicts else "_all")
         self.reset()
 
     def reset(self) -> None:
@@ -265,6 +270,8 @@ class MonteCarloLocalization:
     def update(self, query: Query, reports: Sequence[StepReport]) -> Fused:
         delta = self.link.motion(query)
         reliable = reliable_estimates(reports)
+        if not self.trust_verdicts:
+            reliable = [r.estimate for r in reports if r.estimate is not None]
         if delta is None or self.particles is None:
             accepted, _ = gated(reliable, self.gating)
             odo = [e for e in accepted if e.step == ODOMETRY_STEP and e.kind == "full"]

@@ -6,6 +6,8 @@ unary factor(s) as in :mod:`factorloc.fusion.graph`, but its Gaussian noise
 model is wrapped in an M-estimator (``gtsam.noiseModel.Robust``), so that a
 residual of whitened size r costs ρ(r) instead of r²/2:
 
+* ``gaussian``: no kernel at all — plain least squares over every reliable
+  estimate, the reference that shows what gates and kernels are for;
 * Huber (k): quadratic up to k σ, linear beyond — an outlier still pulls, with bounded influence;
 * Cauchy (k): ρ = k²/2 · log(1 + r²/k²) — the influence of a far outlier vanishes;
 * GNC (Yang et al., *Graduated Non-Convexity*, RA-L 2020) with the truncated
@@ -42,10 +44,10 @@ from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate, Query, StepReport
 
-KERNELS = ("huber", "cauchy", "gnc")
+KERNELS = ("gaussian", "huber", "cauchy", "gnc")
 
 #: Default kernel widths, in σ of the whitened residual.
-DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849, "gnc": 3.0}
+DEFAULT_K = {"gaussian": 1.0, "huber": 1.345, "cauchy": 2.3849, "gnc": 3.0}
 
 
 def _robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseModel.Base:
@@ -63,11 +65,11 @@ def _noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
 def robust_factors_for(estimate: Estimate, kernel: str, k: float, key: int = POSE_KEY) -> list[gtsam.NonlinearFactor]:
     """The unary factor(s) of :func:`factorloc.fusion.graph.factors_for`, with robust noise models.
 
-    For ``kernel="gnc"`` the plain Gaussian factors are returned (GNC applies its own loss).
+    For ``kernel="gnc"`` and ``"gaussian"`` the plain Gaussian factors are returned (GNC applies its own loss).
     """
     from factorloc.fusion.graph import factors_for
 
-    if kernel == "gnc":
+    if kernel in ("gnc", "gaussian"):
         return factors_for(estimate, key)
     v, cov = estimate.values, estimate.covariance
     if estimate.kind == "heading":
@@ -89,12 +91,18 @@ class RobustGraphFusion:
     Parameters
     ----------
     kernel
-        ``"huber"``, ``"cauchy"`` or ``"gnc"`` (truncated least squares by graduated non-convexity).
+        ``"huber"``, ``"cauchy"``, ``"gnc"`` (truncated least squares by graduated non-convexity)
+        or ``"gaussian"`` (no kernel: least squares over every reliable estimate, no gate).
     k
         Kernel width in σ (default: 1.345 Huber, 2.385 Cauchy — 95 % efficiency —, 3 for GNC's inlier threshold).
+    trust_verdicts
+        True (default): :meth:`update` fuses the estimates their estimator judged reliable.
+        False: every estimate the steps produced enters, the unreliable ones too (the kernel alone
+        decides): e.g. an ICP global solution its step refused because it disagrees with a kidnapped
+        odometry.
     """
 
-    def __init__(self, kernel: str = "cauchy", k: float | None = None) -> None:
+    def __init__(self, kernel: str = "cauchy", k: float | None = None, *, trust_verdicts: bool = True) -> None:
         if kernel not in KERNELS:
             raise ConfigError(f"RobustGraphFusion.kernel must be one of {KERNELS}, got {kernel!r}")
         kk = DEFAULT_K[kernel] if k is None else float(k)
@@ -102,7 +110,8 @@ class RobustGraphFusion:
             raise ConfigError(f"RobustGraphFusion.k must be a positive number of σ, got {k!r}")
         self.kernel = kernel
         self.k = kk
-        self.name = f"robust_{kernel}"
+        self.trust_verdicts = bool(trust_verdicts)
+        self.name = ("ungated_gaussian" if kernel == "gaussian" else f"robust_{kernel}") + ("" if trust_verdicts else "_all")
 
     # --- FusionStrategy -------------------------------------------------------------------
     def fuse(self, estimates: Sequence[Estimate]) -> Fused:
@@ -181,15 +190,15 @@ class RobustGraphFusion:
         """No memory across queries."""
 
     def update(self, query: Query, reports: Sequence[StepReport]) -> Fused:
-        """Fuse every estimate of ``reports`` its estimator judged reliable (no consistency gate)."""
-        ests = reliable_estimates(reports)
+        """Fuse every estimate of ``reports`` its estimator judged reliable (all with ``trust_verdicts=False``); no consistency gate."""
+        ests = reliable_estimates(reports) if self.trust_verdicts else [r.estimate for r in reports if r.estimate is not None]
         if not ests:
             seed = query.odometry.T_world_robot if query.odometry is not None else Pose2()
             return Fused(seed, np.diag([np.inf] * 3), (Component.X, Component.Y, Component.THETA))
         return self.fuse(ests)
 
     def __repr__(self) -> str:
-        return f"RobustGraphFusion(kernel={self.kernel!r}, k={self.k:g})"
+        return f"RobustGraphFusion(kernel={self.kernel!r}, k={self.k:g}, trust_verdicts={self.trust_verdicts})"
 
 
 def _determined(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> bool:
