@@ -140,14 +140,17 @@ def _gate(
                 reports.append(StepReport(step.name, StepStatus.INCONSISTENT, est, verdict.reason, dt))
             else:
                 fused_inputs.append(part)
-                if verdict is None:
-                    reason = est.reason
-                elif verdict.fully_accepted:
-                    reason = "; ".join(r for r in (est.reason, verdict.reason) if r)
+                if verdict is None or verdict.fully_accepted:
+                    reason = est.reason or verdict_reason(verdict)
                 else:
                     reason = f"partly fused: {verdict.reason}"
                 reports.append(StepReport(step.name, StepStatus.FUSED, est, reason, dt))
     return reports, fused_inputs
+
+
+def verdict_reason(verdict: object) -> str:
+    """The consistency verdict's reason, for estimates that gave none of their own."""
+    return getattr(verdict, "reason", "") if verdict is not None else ""
 
 
 def _result(

@@ -162,3 +162,24 @@ def test_evaluate_uses_the_given_config(tmp_path: Path) -> None:
     assert list(out["steps"]) == ["odometry", "icp"] and out["strategy"] == "product"
     bad = runner.invoke(app, ["evaluate", str(scen), "--config", str(tmp_path / "none.yaml")])
     assert bad.exit_code == 2 and "config file not found" in bad.output
+
+
+def test_localize_one_sample_query_prints_the_steps_and_the_fused_pose(repo_root: Path) -> None:
+    sample = repo_root / "data" / "sample"
+    result = runner.invoke(app, ["localize", str(sample), "q0000", "--json"])
+    assert result.exit_code == 0, result.output
+    out = json.loads(result.output)
+    assert [s["name"] for s in out["steps"]] == ["odometry", "compass", "correlation", "icp"]
+    assert out["query_id"] == "q0000" and out["truth"] is not None
+    if not out["undetermined"]:  # a determined pose is close to the truth
+        err = math.hypot(out["pose"]["x_m"] - out["truth"]["x_m"], out["pose"]["y_m"] - out["truth"]["y_m"])
+        assert err < 0.10
+    table = runner.invoke(app, ["localize", str(sample), "q0000"])
+    assert table.exit_code == 0 and "Fused pose" in table.output and "Error against ground truth" in table.output
+
+
+def test_localize_unknown_query_or_scenario_fails_cleanly(repo_root: Path, tmp_path: Path) -> None:
+    result = runner.invoke(app, ["localize", str(repo_root / "data" / "sample"), "no-such-query"])
+    assert result.exit_code == 2 and "no query 'no-such-query'" in result.output
+    result = runner.invoke(app, ["localize", str(tmp_path), "q0000"])
+    assert result.exit_code == 2 and "error" in result.output.lower()
