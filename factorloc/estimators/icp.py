@@ -539,7 +539,13 @@ class IcpStep:
         self.config = config
 
     def prepare(self, reference: Reference) -> IcpReference | None:
-        return prepare_reference(reference, self.config)
+        """The prepared reference scan, or None (step skipped) when the reference has no usable scan or cloud."""
+        try:
+            return prepare_reference(reference, self.config)
+        except InputError as exc:
+            # a cloud with nothing in the height band: the step cannot run on this reference; say so
+            log.warning("ICP step skipped for reference %r: %s", reference.name, exc)
+            return None
 
     def estimate(self, prepared: IcpReference | None, query: Query, hypotheses: Hypotheses) -> Estimate | None:
         if prepared is None:
