@@ -153,24 +153,40 @@ def compose_with_covariance(
     return pose.compose(delta), 0.5 * (P + P.T)
 
 
-def log_likelihood(estimate: Estimate, poses: np.ndarray, truncate_sigma: float | None = 4.0) -> np.ndarray:
-    """Log-likelihood (up to a constant) of ``estimate`` at each of N×3 world-frame ``poses``.
+def log_likelihood(
+    estimate: Estimate, poses: np.ndarray, outlier_probability: float | None = 0.05, area_m2: float = 100.0
+) -> np.ndarray:
+    """Log-likelihood density of ``estimate`` at each of N×3 world-frame ``poses``.
 
-    −½ d² with d² = rᵀ R⁻¹ r, r = z − H·pose (θ wrapped), R the estimate's
-    covariance. With ``truncate_sigma`` = c, d² is capped at c²: the robust
-    sensor model of Thrun et al. (a Gaussian plus a uniform outlier floor),
-    so that one wrong estimate cannot wipe out the true hypothesis.
+    The robust sensor model of Thrun et al. (*Probabilistic Robotics* §6.3): a
+    Gaussian mixed with a uniform density for wrong measurements,
+
+        p(z | pose) = (1 − ε) N(z; H·pose, R) + ε U,
+
+    with ε = ``outlier_probability``, R the estimate's covariance, θ residuals
+    wrapped, and U = 1/``area_m2`` per measured position, 1/(2π) per measured
+    heading — so that one wrong estimate cannot wipe out the true hypothesis,
+    and the floor stays small against a sharp Gaussian. ``outlier_probability=None``
+    gives the pure Gaussian.
     """
     p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in estimate.components]
     r = np.asarray(estimate.values)[None, :] - p[:, idx]
     if estimate.measures(Component.THETA):
         r[:, -1] = np.mod(r[:, -1] + math.pi, 2.0 * math.pi) - math.pi
-    info = np.linalg.inv(np.asarray(estimate.covariance))
+    cov = np.asarray(estimate.covariance)
+    info = np.linalg.inv(cov)
     d2 = np.einsum("ni,ij,nj->n", r, info, r)
-    if truncate_sigma is not None:
-        d2 = np.minimum(d2, float(truncate_sigma) ** 2)
-    return -0.5 * d2
+    log_gauss = -0.5 * d2 - 0.5 * float(np.linalg.slogdet(2.0 * math.pi * cov)[1])
+    if outlier_probability is None:
+        return log_gauss
+    eps = float(outlier_probability)
+    log_u = 0.0
+    if estimate.measures(Component.X):
+        log_u -= math.log(float(area_m2))
+    if estimate.measures(Component.THETA):
+        log_u -= math.log(2.0 * math.pi)
+    return np.logaddexp(math.log1p(-eps) + log_gauss, math.log(eps) + log_u)
 
 
 def full_pose_mask(estimates: Sequence[Estimate]) -> tuple[bool, bool]:

@@ -52,10 +52,13 @@ class MarkovGridLocalization:
         Cell size in x and y (m).
     n_theta
         Number of heading bins over [-π, π).
-    motion, gating, truncate_sigma, continuous
+    motion, gating, outlier_probability, continuous
         As in :class:`~factorloc.baselines.mcl.MonteCarloLocalization`.
     uniform_mix
         Share of the predicted belief spread uniformly over the grid (recovery from kidnapping).
+    undetermined_sigma_m, undetermined_sigma_rad
+        When the whole belief's position (heading) σ exceeds this, that component is reported
+        under-determined (the estimate near the mode would mean nothing).
     window_cells
         Half-width (cells, and heading bins / 2) of the window around the mode used for the estimate.
     """
@@ -67,10 +70,12 @@ class MarkovGridLocalization:
         n_theta: int = 72,
         motion: MotionModel = MotionModel(),
         gating: GatingConfig | None = GatingConfig(),
-        truncate_sigma: float = 4.0,
+        outlier_probability: float = 0.05,
         continuous: bool = True,
         window_cells: int = 4,
         uniform_mix: float = 1e-3,
+        undetermined_sigma_m: float = 1.0,
+        undetermined_sigma_rad: float = 1.0,
     ) -> None:
         b = tuple(float(v) for v in bounds_xy)
         if len(b) != 4 or not (b[0] < b[2] and b[1] < b[3]) or not all(map(math.isfinite, b)):
@@ -84,11 +89,15 @@ class MarkovGridLocalization:
         self.n_theta = n_theta
         self.motion = motion
         self.gating = gating
-        self.truncate_sigma = float(truncate_sigma)
+        if not 0.0 < outlier_probability < 1.0:
+            raise InputError(f"outlier_probability must be in (0, 1), got {outlier_probability!r}")
+        self.outlier_probability = float(outlier_probability)
         self.window_cells = int(window_cells)
         if not 0.0 <= uniform_mix < 1.0:
             raise InputError(f"uniform_mix must be in [0, 1), got {uniform_mix!r}")
         self.uniform_mix = float(uniform_mix)
+        self.undetermined_sigma_m = float(undetermined_sigma_m)
+        self.undetermined_sigma_rad = float(undetermined_sigma_rad)
         self.link = OdometryLink(continuous)
         self.xs = np.arange(b[0] + 0.5 * resolution_m, b[2], resolution_m)
         self.ys = np.arange(b[1] + 0.5 * resolution_m, b[3], resolution_m)
@@ -145,7 +154,8 @@ class MarkovGridLocalization:
             # the likelihood of a cell, not of its centre: the estimate's covariance plus the cell's extent
             idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in e.components]
             cell = Estimate(e.step, e.components, e.values, np.asarray(e.covariance) + np.diag(quant[idx]))
-            log_b += log_likelihood(cell, self._centres, self.truncate_sigma).reshape(self.belief.shape)
+            area = (self.bounds_xy[2] - self.bounds_xy[0]) * (self.bounds_xy[3] - self.bounds_xy[1])
+            log_b += log_likelihood(cell, self._centres, self.outlier_probability, area).reshape(self.belief.shape)
         b = np.exp(log_b - log_b.max())
         self.belief = b / b.sum()
 
@@ -179,7 +189,21 @@ class MarkovGridLocalization:
             measurements, _ = gated([e for e in reliable if e.step != ODOMETRY_STEP], self.gating)
         self.correct(measurements)
         mean, cov = self.estimate()
-        return Fused(Pose2.from_array(mean), cov)
+        return Fused(Pose2.from_array(mean), cov, self._undetermined())
+
+    def _undetermined(self) -> tuple[Component, ...]:
+        """Components whose whole-grid marginal σ exceeds the thresholds."""
+        out: tuple[Component, ...] = ()
+        px, py = self.belief.sum(axis=(0, 1)), self.belief.sum(axis=(0, 2))
+        sx = math.sqrt(float(px @ (self.xs - px @ self.xs) ** 2))
+        sy = math.sqrt(float(py @ (self.ys - py @ self.ys) ** 2))
+        if max(sx, sy) > self.undetermined_sigma_m:
+            out += (Component.X, Component.Y)
+        pt = self.belief.sum(axis=(1, 2))
+        r = abs(complex(float(pt @ np.cos(self.thetas)), float(pt @ np.sin(self.thetas))))
+        if math.sqrt(-2.0 * math.log(max(r, 1e-300))) > self.undetermined_sigma_rad:
+            out += (Component.THETA,)
+        return out
 
     def __repr__(self) -> str:
         return f"MarkovGridLocalization(resolution_m={self.resolution_m}, n_theta={self.n_theta}, cells={self.n_cells})"

@@ -12,10 +12,13 @@ The belief is a set of N weighted particles (x, y, θ) in the world frame.
   :func:`~factorloc.baselines.common.log_likelihood`).
 * **Mixture proposal** (the paper's *Mixture-MCL*): a fraction ``dual_fraction``
   of the particles is drawn from the measurements themselves (their Gaussian
-  product, when they fix the full pose) and weighted by the predicted belief
-  (a Gaussian fit of the predicted particles) — this keeps MCL from starving
-  when the sensor is much sharper than the motion (ICP σ ≈ 5 mm against
-  several cm of odometry noise).
+  product, when they fix the full pose) — this keeps MCL from starving when
+  the sensor is much sharper than the motion (ICP σ ≈ 5 mm against several cm
+  of odometry noise). All particles are then weighted by importance sampling
+  against the mixture proposal, w = p(z|x)·prior(x) / ((1−φ)·prior(x) + φ·sensor(x)),
+  with Gaussian fits of the predicted particles and of the measurements (the
+  paper normalizes the two sets separately, which keeps a fixed share of the
+  mass on forward particles even when they all miss the measurement).
 * **Resampling**: low-variance (systematic) resampling, *Probabilistic
   Robotics* Table 4.4, when the effective sample size falls under N/2,
   followed by a small regularization jitter (the regularized particle filter).
@@ -102,8 +105,9 @@ class MonteCarloLocalization:
         Fraction of particles drawn from the measurements (Mixture-MCL); 0 gives plain MCL.
     alpha_slow, alpha_fast
         Averaging rates of the long- and short-term likelihood (Augmented MCL; 0 < slow ≪ fast).
-    truncate_sigma
-        Outlier floor of the sensor model, in σ.
+    outlier_probability
+        ε of the robust sensor model (:func:`~factorloc.baselines.common.log_likelihood`); its uniform
+        part spreads over ``bounds_xy`` (100 m² without bounds).
     continuous
         Whether consecutive queries share one odometry run.
     seed
@@ -111,6 +115,9 @@ class MonteCarloLocalization:
     trust_verdicts
         True (default): the estimates their estimator judged reliable; False: every estimate
         (the robust sensor model and the random particles alone deal with the wrong ones).
+    undetermined_sigma_m, undetermined_sigma_rad
+        A belief spread wider than this (largest position σ, heading σ) is reported as
+        under-determined in that component, like a per-query fusion without a position measurement.
     """
 
     def __init__(
@@ -122,10 +129,12 @@ class MonteCarloLocalization:
         dual_fraction: float = 0.1,
         alpha_slow: float = 0.05,
         alpha_fast: float = 0.5,
-        truncate_sigma: float = 4.0,
+        outlier_probability: float = 0.05,
         continuous: bool = True,
         seed: int = 0,
         trust_verdicts: bool = True,
+        undetermined_sigma_m: float = 1.0,
+        undetermined_sigma_rad: float = 1.0,
     ) -> None:
         if isinstance(n_particles, bool) or not isinstance(n_particles, int) or n_particles < 10:
             raise InputError(f"n_particles must be an integer >= 10, got {n_particles!r}")
@@ -144,10 +153,15 @@ class MonteCarloLocalization:
         self.gating = gating
         self.dual_fraction = float(dual_fraction)
         self.alpha_slow, self.alpha_fast = float(alpha_slow), float(alpha_fast)
-        self.truncate_sigma = float(truncate_sigma)
+        if not 0.0 < outlier_probability < 1.0:
+            raise InputError(f"outlier_probability must be in (0, 1), got {outlier_probability!r}")
+        self.outlier_probability = float(outlier_probability)
+        self.area_m2 = 100.0 if bounds_xy is None else (bounds_xy[2] - bounds_xy[0]) * (bounds_xy[3] - bounds_xy[1])
         self.seed = int(seed)
         self.link = OdometryLink(continuous)
         self.trust_verdicts = bool(trust_verdicts)
+        self.undetermined_sigma_m = float(undetermined_sigma_m)
+        self.undetermined_sigma_rad = float(undetermined_sigma_rad)
         self.name = f"mcl_{n_particles}" + ("" if trust_verdicts else "_all")
         self.reset()
 
@@ -195,7 +209,7 @@ class MonteCarloLocalization:
     def _loglik(self, estimates: Sequence[Estimate], poses: np.ndarray) -> np.ndarray:
         ll = np.zeros(len(poses))
         for e in estimates:
-            ll += log_likelihood(e, poses, self.truncate_sigma)
+            ll += log_likelihood(e, poses, self.outlier_probability, self.area_m2)
         return ll
 
     def correct(self, estimates: Sequence[Estimate]) -> None:
@@ -206,19 +220,19 @@ class MonteCarloLocalization:
         fit = self._fit(estimates)
         n_dual = int(round(self.dual_fraction * self.n)) if measured is not None else 0
         if n_dual:
-            # Mixture-MCL: replace a random subset by samples of the sensor model, weighted by the prior belief
+            # Mixture-MCL: a share of the particles is drawn from the sensor model. Every particle is
+            # weighted by importance sampling against the mixture proposal q = (1−φ)·prior + φ·sensor
+            # (Gaussian fits of both): w = p(z|x)·prior(x) / q(x).
             prior_mean, prior_cov = weighted_mean_covariance(self.particles, self.weights)
             keep = self.rng.choice(self.n, self.n - n_dual, replace=False, p=self.weights / self.weights.sum())
             dual = self._gaussian(measured[0], measured[1], n_dual)
-            r = dual - prior_mean
-            r[:, 2] = _wrap(r[:, 2])
-            info = np.linalg.inv(prior_cov + 1e-12 * np.eye(3))
-            d2 = np.minimum(np.einsum("ni,ij,nj->n", r, info, r), self.truncate_sigma**2)
-            w_dual = np.exp(-0.5 * (d2 - d2.min()))
             self.particles = np.vstack([self.particles[keep], dual])
-            ll = self._loglik(estimates, self.particles[: self.n - n_dual])
-            w_pf = np.exp(ll - ll.max())
-            weights = np.concatenate([(1 - self.dual_fraction) * w_pf / w_pf.sum(), self.dual_fraction * w_dual / w_dual.sum()])
+            ll = self._loglik(estimates, self.particles)
+            lp = _log_gauss(self.particles, prior_mean, prior_cov)
+            lm = _log_gauss(self.particles, measured[0], measured[1])
+            lq = np.logaddexp(math.log1p(-self.dual_fraction) + lp, math.log(self.dual_fraction) + lm)
+            logw = ll + lp - lq
+            weights = np.exp(logw - logw.max())
         else:
             ll = self._loglik(estimates, self.particles)
             weights = self.weights * np.exp(ll - ll.max())
@@ -287,10 +301,31 @@ class MonteCarloLocalization:
             measurements, _ = gated([e for e in reliable if e.step != ODOMETRY_STEP], self.gating)
         self.correct(measurements)
         mean, cov = weighted_mean_covariance(self.particles, self.weights)
-        return Fused(Pose2.from_array(mean), cov)
+        return Fused(
+            Pose2.from_array(mean), cov, spread_undetermined(cov, self.undetermined_sigma_m, self.undetermined_sigma_rad)
+        )
 
     def __repr__(self) -> str:
         return f"MonteCarloLocalization(n_particles={self.n}, seed={self.seed})"
+
+
+def spread_undetermined(covariance: np.ndarray, sigma_m: float, sigma_rad: float) -> tuple[Component, ...]:
+    """The components of a sample-based belief too spread out to count as determined."""
+    out: tuple[Component, ...] = ()
+    if math.sqrt(max(float(np.linalg.eigvalsh(covariance[:2, :2])[-1]), 0.0)) > sigma_m:
+        out += (Component.X, Component.Y)
+    if math.sqrt(max(float(covariance[2, 2]), 0.0)) > sigma_rad:
+        out += (Component.THETA,)
+    return out
+
+
+def _log_gauss(x: np.ndarray, mean: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """log N(x; mean, cov) of N×3 poses (θ residual wrapped)."""
+    c = np.asarray(cov) + 1e-12 * np.eye(3)
+    r = x - mean
+    r[:, 2] = _wrap(r[:, 2])
+    d2 = np.einsum("ni,ij,nj->n", r, np.linalg.inv(c), r)
+    return -0.5 * d2 - 0.5 * float(np.linalg.slogdet(2.0 * math.pi * c)[1])
 
 
 def _gaussian_of(estimates: Sequence[Estimate]) -> tuple[np.ndarray, np.ndarray] | None:
