@@ -60,3 +60,14 @@ def test_bad_grid_is_refused() -> None:
         MarkovGridLocalization(BOUNDS, resolution_m=0.0)
     with pytest.raises(InputError, match="bounds_xy"):
         MarkovGridLocalization((0.0, 0.0, 0.0, 1.0))
+
+
+def test_heading_only_evidence_leaves_position_undetermined(synthetic) -> None:
+    from factorloc.types import Component
+
+    syn = synthetic(2, seed=6, no_odometry=True)
+    grid = MarkovGridLocalization(BOUNDS, resolution_m=0.2, n_theta=36)
+    grid.reset()
+    fused = grid.update(syn.queries[0], tuple(r for r in syn.reports[0] if r.name == "compass"))
+    assert fused.undetermined == (Component.X, Component.Y)
+    assert abs((fused.pose.theta - syn.truths[0].theta + np.pi) % (2 * np.pi) - np.pi) < math.radians(10.0)

@@ -71,3 +71,16 @@ def test_bad_parameters_are_refused() -> None:
         MonteCarloLocalization(3)
     with pytest.raises(InputError, match="bounds_xy"):
         MonteCarloLocalization(100, (1.0, 0.0, 0.0, 1.0))
+
+
+def test_a_belief_spread_over_the_map_reports_position_undetermined(synthetic) -> None:
+    from factorloc.types import Component, StepReport
+
+    syn = synthetic(3, seed=6, no_odometry=True)
+    heading_only = [tuple(r for r in reps if r.name == "compass") for reps in syn.reports]
+    assert all(isinstance(r, StepReport) for reps in heading_only for r in reps)
+    mcl = MonteCarloLocalization(1000, BOUNDS, seed=0)
+    mcl.reset()
+    fused = mcl.update(syn.queries[0], heading_only[0])
+    assert fused.undetermined == (Component.X, Component.Y)
+    assert abs((fused.pose.theta - syn.truths[0].theta + np.pi) % (2 * np.pi) - np.pi) < 0.05

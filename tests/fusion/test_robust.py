@@ -77,3 +77,27 @@ def test_heading_only_input_reports_position_undetermined() -> None:
 def test_unknown_kernel_is_refused() -> None:
     with pytest.raises(ConfigError, match="kernel"):
         RobustGraphFusion("tukey")
+
+
+def test_ignoring_verdicts_fuses_the_unreliable_estimates_too() -> None:
+    good = Estimate.pose(
+        "icp", Pose2(1.0, 2.0, 0.3), 0.01, 0.01, 0.005, reliable=False, reason="inconsistent with the odometry seed"
+    )
+    wrong_odometry = Estimate.pose("odometry", Pose2(2.0, 2.5, 0.8), 0.3, 0.3, 0.2)
+    reports = [
+        StepReport("odometry", StepStatus.FUSED, wrong_odometry),
+        StepReport("icp", StepStatus.UNRELIABLE, good, good.reason),
+    ]
+    trusting = RobustGraphFusion("gnc").update(Query(id="q"), reports)
+    listening = RobustGraphFusion("gnc", trust_verdicts=False).update(Query(id="q"), reports)
+    assert RobustGraphFusion("gnc", trust_verdicts=False).name == "robust_gnc_all"
+    assert math.hypot(trusting.pose.x - 2.0, trusting.pose.y - 2.5) < 1e-6  # only the odometry
+    assert math.hypot(listening.pose.x - 1.0, listening.pose.y - 2.0) < 0.01  # the precise ICP dominates
+
+
+def test_gaussian_kernel_is_plain_least_squares() -> None:
+    ests = [*_consistent(), Estimate.heading("correlation", 0.3 + math.radians(20.0), 0.01)]
+    plain = GraphFusion().fuse(ests)
+    gaussian = RobustGraphFusion("gaussian").fuse(ests)
+    assert RobustGraphFusion("gaussian").name == "ungated_gaussian"
+    assert np.allclose(gaussian.pose.as_array(), plain.pose.as_array(), atol=1e-9)
