@@ -8,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from factorloc import Odometry, Pose2, Query, Reference, Scan
+from factorloc import Estimate, Odometry, Pose2, Query, Reference, Scan
 from factorloc.benchmarking import BenchSettings, fit_exponent, run_bench, scaled_set
+from factorloc.estimators.base import Hypotheses
 from factorloc.evaluation import Case, EvaluationSet
 
 _SEGMENTS = [((0, 0), (5, 0)), ((5, 0), (5, 4)), ((5, 4), (0, 4)), ((0, 4), (0, 0)),
@@ -75,3 +76,35 @@ def test_fit_exponent_recovers_a_power_law() -> None:
     s = np.array([0.5, 1.0, 2.0, 4.0])
     assert fit_exponent(s, 3.0 * s**1.5) == pytest.approx(1.5)
     assert math.isnan(fit_exponent([1.0], [2.0]))
+
+
+class _SeedHungryStep:
+    """A heading step that is right when seeded and confidently 20° wrong when blind (what seeding is for)."""
+
+    name = "compass"
+
+    def __init__(self, truth: dict[str, Pose2]) -> None:
+        self.truth = truth
+
+    def prepare(self, reference: Reference) -> None:
+        return None
+
+    def estimate(self, prepared: None, query: Query, hypotheses: Hypotheses) -> Estimate:
+        blind = hypotheses.heading() is None
+        return Estimate.heading(self.name, self.truth[query.id].theta + (math.radians(20.0) if blind else 0.0), 0.01)
+
+
+def test_hierarchy_ablation_counts_false_positives_of_the_seeded_steps_only(room: EvaluationSet) -> None:
+    from factorloc.benchmarking import bench_hierarchy
+    from factorloc.estimators.odometry import OdometryStep
+    from factorloc.evaluation import run_hierarchy
+
+    truth = {c.query.id: c.truth for c in room.cases}
+    steps = [OdometryStep(), _SeedHungryStep(truth)]
+    seeded = run_hierarchy(room, steps=steps)
+    blind = run_hierarchy(room, steps=steps, seeded=False)
+    h = bench_hierarchy([seeded], [blind])
+    assert h["seeded"]["false_positive_count"] == 0 and h["blind"]["false_positive_count"] == 3
+    assert h["blind"]["steps_false_positive_count"] == {"odometry": 0, "compass": 3}
+    assert h["false_positive_ratio"] == 3.0 and h["false_positive_ratio_is_lower_bound"] is True
+    assert h["time_ratio"] > 0
