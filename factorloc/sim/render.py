@@ -547,8 +547,9 @@ def render_cloud(
     """Render the point cloud a depth camera returns (robot frame, z up from the floor).
 
     Points are N×3 metres in the robot frame (x forward, y left, z from the
-    floor), row-major over the (strided) pixel grid, keeping depths in
-    ``[min_range_m, max_range_m]`` and dropping glass (faces marked ``glass`` in
+    floor), row-major over the (strided) pixel grid, keeping true depths in
+    ``[min_range_m, max_range_m]`` (the range test precedes the noise, so a noisy
+    depth may exceed the limits by a few σ) and dropping glass (faces marked ``glass`` in
     the world, plus the face indices ``glass_faces`` into ``world.segments.faces``).
     With ``rng`` each depth gets Gaussian noise of σ = ``depth_camera.noise_sigma_m(depth)``
     along its ray; ``rng=None`` renders noise-free. Values are rounded to float32
