@@ -132,6 +132,9 @@ def gated(estimates: Sequence[Estimate], gating: GatingConfig | None) -> tuple[l
 def prior_estimate(pose: Pose2, covariance: np.ndarray, name: str = "prediction") -> Estimate:
     """A belief N(pose, covariance) as a full-pose :class:`Estimate` (world frame), for the gate."""
     cov = 0.5 * (np.asarray(covariance, dtype=np.float64) + np.asarray(covariance, dtype=np.float64).T)
+    low = float(np.linalg.eigvalsh(cov)[0])
+    if low <= 1e-12 * float(np.max(np.diag(cov))):  # rounding in a belief mixing 1e6 and 1e-6 variances
+        cov = cov + np.eye(3) * (1e-12 * float(np.max(np.diag(cov))) - min(low, 0.0))
     return Estimate(name, FULL, pose.as_array(), cov)
 
 
