@@ -1,0 +1,86 @@
+"""MkDocs build hooks: the tutorials and the home-page figure come from the library itself.
+
+- Every notebook of ``notebooks/`` is executed top to bottom (nbclient) into
+  ``docs/tutorials/`` (git-ignored) when that copy is missing or older than its
+  source; a failing cell fails the build. This is where the notebooks run in
+  CI: ``make test`` builds the site.
+- ``docs/assets/generated/home_localization.png`` (git-ignored) is drawn by
+  localizing one query of the shipped sample scenario.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("mkdocs.hooks.factorloc")
+DOCS = Path(__file__).resolve().parent
+REPO = DOCS.parent
+NOTEBOOKS = REPO / "notebooks"
+TUTORIALS = DOCS / "tutorials"
+GENERATED = DOCS / "assets" / "generated"
+
+
+def on_pre_build(config: Any, **kwargs: Any) -> None:
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    execute_notebooks()
+    home_figure()
+
+
+def execute_notebooks() -> None:
+    """Execute each notebook into docs/tutorials/ unless its executed copy is up to date."""
+    import nbformat
+    from nbclient import NotebookClient
+
+    TUTORIALS.mkdir(parents=True, exist_ok=True)
+    force = os.environ.get("FACTORLOC_DOCS_REEXECUTE") == "1"
+    for source in sorted(NOTEBOOKS.glob("*.ipynb")):
+        target = TUTORIALS / source.name
+        if not force and target.exists() and target.stat().st_mtime >= source.stat().st_mtime:
+            continue
+        t0 = time.perf_counter()
+        nb = nbformat.read(source, as_version=4)
+        NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}}).execute()
+        nbformat.write(nb, target)
+        log.info("executed %s in %.1f s", source.name, time.perf_counter() - t0)
+
+
+def home_figure() -> None:
+    """A floor plan with one localized pose and its 95 % covariance ellipse (scaled up to be visible)."""
+    target = GENERATED / "home_localization.png"
+    if target.exists():
+        return
+    import math
+
+    import matplotlib.pyplot as plt
+
+    import factorloc
+    from factorloc.datasets import load_scenario
+    from factorloc.plotting import plot_covariance_ellipse_on_axes, plot_world_on_axes
+
+    scenario = load_scenario(REPO / "data" / "sample")
+    localizer = factorloc.Localizer(scenario.reference)
+    case = next(q for q in scenario.queries if q.truth is not None and not q.faults)
+    loc = localizer.localize(case.query)
+    fig, ax = plt.subplots(figsize=(7.5, 6.0), dpi=110)
+    plot_world_on_axes(ax, scenario.world)
+    ref = scenario.reference.T_world_reference
+    ax.plot(ref.x, ref.y, marker="*", ms=14, color="black", ls="", label="reference (panorama + 3D scan)")
+    ax.plot(case.truth.x, case.truth.y, "o", ms=7, mfc="none", mec="#1b4965", label="true pose")
+    ax.plot(loc.pose.x, loc.pose.y, "x", ms=8, color="#d1495b", label="factorloc estimate")
+    arrow = 0.45
+    ax.annotate("", xy=(loc.pose.x + arrow * math.cos(loc.pose.theta), loc.pose.y + arrow * math.sin(loc.pose.theta)),
+                xytext=(loc.pose.x, loc.pose.y), arrowprops={"arrowstyle": "-|>", "color": "#d1495b"})
+    if not loc.undetermined:
+        scale = 20.0
+        plot_covariance_ellipse_on_axes(ax, (loc.pose.x, loc.pose.y), loc.covariance[:2, :2] * scale**2, lw=1.5,
+                                        label=f"95 % covariance ellipse ×{scale:.0f}")
+    sx, sy, st = loc.sigmas
+    ax.set_title(f"query {case.id}: σx {100 * sx:.1f} cm, σy {100 * sy:.1f} cm, σθ {math.degrees(st):.2f}°")
+    ax.legend(loc="upper right", fontsize=8)
+    GENERATED.mkdir(parents=True, exist_ok=True)
+    fig.savefig(target, bbox_inches="tight")
+    plt.close(fig)
