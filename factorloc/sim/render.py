@@ -330,18 +330,18 @@ def cast_rays(
     ys = (f32(-oy) - dist * dy.astype(f32)[None, :]) * tppm
     ax_t = np.take(atlas.tile_x0.astype(f32), tile) + xs - np.floor(xs / tpx) * tpx
     ay_t = np.take(atlas.tile_y0.astype(f32), tile) + ys - np.floor(ys / tpx) * tpx
-    nsel = 1.0 - fsel
-    ax = fsel * np.take(table(ax_tab), lin) + nsel * ax_t
-    ay = fsel * (np.take(table(ay_tab), lin) - f32(ppm) * dist_t) + nsel * ay_t
+    face_px = fsel > 0.5
+    ax = np.where(face_px, np.take(table(ax_tab), lin), ax_t)
+    ay = np.where(face_px, np.take(table(ay_tab), lin) - f32(ppm) * dist_t, ay_t)
 
     # texel footprint (level-0 texels per pixel) → mip level
     t2 = 1.0 + tan_e * tan_e
     fp_plane = f32(ppm) * pixel_angle_rad.astype(f32)[None, :] * dist / np.maximum(np.abs(tan_e), f32(0.35))
-    fp = (fsel * np.take(table(fp_tab), lin) + nsel * fp_plane) * t2
-    level = (fp >= 2.0).view(np.int8).copy()
-    for lv in range(2, len(atlas.levels)):
-        level += (fp >= 2.0**lv).view(np.int8)
-    scale = np.take(f32(0.5) ** np.arange(len(atlas.levels), dtype=f32), level)
+    fp = np.where(face_px, np.take(table(fp_tab), lin), fp_plane) * t2
+    level = np.frexp(fp)[1]  # fp = m·2^e, m ∈ [0.5, 1): floor(log2 fp) = e − 1
+    level -= 1
+    np.clip(level, 0, len(atlas.levels) - 1, out=level)
+    scale = np.ldexp(f32(1.0), -level)  # 2^−level, exact
     map_x = np.take(atlas.level_x0, level) + ax * scale - f32(0.5)
     map_y = np.take(atlas.level_y0, level) + ay * scale - f32(0.5)
     return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, glass, map_x, map_y)
