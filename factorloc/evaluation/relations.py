@@ -179,13 +179,16 @@ def relations_config(base: Config | None = None) -> Config:
 
     ``base`` (default :class:`Config`) with two changes:
 
-    * ``icp.bias_rmse_ratio = 0.5``. The library default (0.2) is calibrated
+    * ``icp.bias_rmse_ratio = 0.75``. The library default (0.2) is calibrated
       on simulated queries, whose truth is exact and whose noise is white. On
       the relations the error also holds the ground truth's own error (the
       published graph-SLAM solution differs from it by 3–4 cm) and correlated
-      real-world effects (sparse beams on door frames, moved objects); fitted
-      on the local relations of both logs, a shared error of half the fit's
-      RMSE gives an ICP position NEES of 1.6 (Intel) and 1.9 (ACES).
+      real-world effects (sparse beams on door frames, moved objects, long
+      corridors) with heavy tails. Measured on the local relations: with 0.5
+      the ICP position NEES is 1.6 (Intel) and 2.2 (ACES) but 2.4 % of the
+      reliable ACES estimates are off by more than 3σ; with 0.75 the NEES is
+      0.7 and 1.1 and that rate falls to 0.7 % (0 % on Intel). We prefer the
+      honest tail to the textbook mean.
     * ``odometry.max_sigma_position_m = 1.0``: with the :class:`OdometryModel`
       σ (20 % of the path) the odometry stays a reliable seed up to a 5 m
       path, the local/loop boundary of the benchmark.
@@ -193,7 +196,7 @@ def relations_config(base: Config | None = None) -> Config:
     base = base or Config()
     return replace(
         base,
-        icp=replace(base.icp, bias_rmse_ratio=0.5),
+        icp=replace(base.icp, bias_rmse_ratio=0.75),
         odometry=replace(base.odometry, max_sigma_position_m=1.0),
     )
 
