@@ -568,11 +568,7 @@ def localize(
     try:
         cfg = _load_config(config)
         scen = load_scenario(scenario)
-        try:
-            case = scen.query_by_id(query_id)
-        except KeyError:
-            ids = [q.id for q in scen.queries]
-            raise InputError(f"no query {query_id!r} in {scenario}; ids are {ids[:5]}{' …' if len(ids) > 5 else ''}") from None
+        case = scen.query_by_id(query_id)
         loc = factorloc.Localizer(scen.reference_of(case), cfg).localize(case.query, seeded=not blind)
     except FactorlocError as exc:
         _fail(exc)

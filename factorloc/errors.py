@@ -26,3 +26,10 @@ class DatasetError(InputError):
 
 class FusionError(FactorlocError):
     """Fusion could not produce a result (e.g. no estimate to fuse)."""
+
+
+class UnknownIdError(DatasetError, KeyError):
+    """A query or reference id that a scenario does not hold (also a ``KeyError``)."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return Exception.__str__(self)

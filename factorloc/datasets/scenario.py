@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import yaml
 
-from factorloc.errors import DatasetError, InputError
+from factorloc.errors import DatasetError, InputError, UnknownIdError
 from factorloc.geometry import Pose2
 from factorloc.sim.world import World
 from factorloc.types import CameraImage, Odometry, Panorama, PointCloud, Query, Reference, Scan
@@ -247,7 +247,7 @@ class Scenario:
         for r in self.references:
             if r.id == reference_id:
                 return r
-        raise KeyError(f"no reference {reference_id!r} in scenario {self.name!r}; ids are {[r.id for r in self.references]}")
+        raise UnknownIdError(f"no reference {reference_id!r} in scenario {self.name!r}; ids are {[r.id for r in self.references]}")
 
     def reference_of(self, query: ScenarioQuery) -> Reference:
         """The reference ``query`` is localized against."""
@@ -257,7 +257,8 @@ class Scenario:
         for q in self.queries:
             if q.id == query_id:
                 return q
-        raise KeyError(f"no query {query_id!r} in scenario {self.name!r}")
+        ids = [q.id for q in self.queries]
+        raise UnknownIdError(f"no query {query_id!r} in scenario {self.name!r}; ids are {ids[:5]}{' …' if len(ids) > 5 else ''}")
 
     def __len__(self) -> int:
         return len(self.queries)

@@ -7,5 +7,16 @@ Both implement :class:`~factorloc.fusion.base.FusionStrategy` and must agree
 from factorloc.fusion.base import Fused, FusionStrategy, SequentialStrategy
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
+from factorloc.fusion.robust import RobustGraphFusion
+from factorloc.fusion.smoother import FixedLagSmoother, TrajectorySmoother
 
-__all__ = ["Fused", "FusionStrategy", "SequentialStrategy", "GraphFusion", "ProductFusion"]
+__all__ = [
+    "FixedLagSmoother",
+    "Fused",
+    "FusionStrategy",
+    "GraphFusion",
+    "ProductFusion",
+    "RobustGraphFusion",
+    "SequentialStrategy",
+    "TrajectorySmoother",
+]
