@@ -25,7 +25,6 @@ GENERATED = DOCS / "assets" / "generated"
 
 
 def on_pre_build(config: Any, **kwargs: Any) -> None:
-    os.environ.setdefault("MPLBACKEND", "Agg")
     execute_notebooks()
     home_figure()
 
@@ -55,6 +54,9 @@ def home_figure() -> None:
         return
     import math
 
+    import matplotlib
+
+    matplotlib.use("Agg")  # this process only: the notebook kernels keep their inline backend
     import matplotlib.pyplot as plt
 
     import factorloc

@@ -232,6 +232,8 @@ def relations_benchmark(
     odometry_model
         How the odometry σ grows with the motion (default :class:`OdometryModel`).
 
+    Notes
+    -----
     Summarize with :func:`summarize` (the table) and :func:`format_table`.
     """
     methods = list(methods)
