@@ -26,7 +26,11 @@ Reliability (all must hold): fitness (fraction of query points within
 ``max_sigma_heading_rad``; at least ``min_inliers`` correspondences; and,
 at most ``max_violation`` of either scan in space the other saw empty; and,
 after a global initialization, no distinct second solution whose score
-(fitness − violation) reaches ``ambiguity_ratio`` × the best.
+(fitness − violation) reaches ``ambiguity_ratio`` × the best. A seeded ICP
+must also stay consistent with its position seed (see
+``IcpConfig.seed_consistency_probability``); a global solution need not: a
+kidnapped robot's odometry is confidently wrong, and deciding between two
+disagreeing steps is the consistency gate's job (:mod:`factorloc.gating`).
 """
 
 from __future__ import annotations
@@ -119,7 +123,13 @@ class IcpConfig:
         farther than ``3σ + seed_jump_margin_m`` from the seed: where the scan
         constrains every direction, ICP may correct a seed by a few σ (measured
         on the Intel log: the odometry was off by 11–20 cm at σ 3–5 cm, and
-        ICP was right), but not jump away from it.
+        ICP was right), but not jump away from it. Applied to the *seeded*
+        ICP only: a seeded ICP that left its seed converged to a wrong
+        minimum, whereas a global-initialization result is judged on its own
+        criteria (fitness, RMSE, Chamfer, σ, free space, ambiguity) and, when
+        it disagrees with the seed (a kidnapped robot whose odometry is
+        confidently wrong), the pipeline's consistency gate decides between
+        the two (it drops the earlier step, the odometry, on a tie).
     gap_free_m
         Bearings without a return inside a scan's field of view are taken as
         seen free up to this range (0 = unknown); see
@@ -500,7 +510,14 @@ def estimate(
         seed_d2 = float(e @ np.linalg.solve(cov_world[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2]), e))
         limit = _chi2_2dof(config.seed_consistency_probability)
         jump = float(np.hypot(*e)) > config.seed_jump_margin_m + 3.0 * max(pos[2], pos[3])
-        if verdict.reliable and seed_d2 > limit and (jump or constraint_strength(result) < config.seed_check_max_constraint):
+        # only a *seeded* ICP that left its seed is suspect (it slid or converged to a wrong minimum); a global
+        # solution that is good on its own criteria and disagrees with the seed is left to the consistency gate
+        if (
+            not used_global
+            and verdict.reliable
+            and seed_d2 > limit
+            and (jump or constraint_strength(result) < config.seed_check_max_constraint)
+        ):
             verdict = _Verdict(False, f"inconsistent with the {pos[4]} seed: Mahalanobis² {seed_d2:.1f} > {limit:.1f}")
     s_ch = max(config.chamfer_scale * result.chamfer_m, 1e-4)
     diagnostics: dict[str, Any] = {

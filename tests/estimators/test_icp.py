@@ -169,3 +169,30 @@ def test_config_rejects_bad_values() -> None:
     with pytest.raises(ConfigError, match="kernel"):
         IcpConfig(kernel="nope")
     assert Config.from_dict({"icp": {"min_fitness": 0.5, "icp": {"max_iterations": 10}}}).icp.icp.max_iterations == 10
+
+
+# (seed, query index) of kidnapped queries of generate_scenario('apartment', 30, seed, faults=('kidnapped',)) whose
+# odometry is reliable (σ of a few cm) but 1–2 m off, and where global initialization finds the true pose
+_KIDNAPPED = ((1, 11), (1, 18), (2, 7))
+
+
+@pytest.mark.parametrize(("seed", "index"), _KIDNAPPED)
+def test_kidnapped_robot_recovered_through_the_pipeline_odometry_position_gated_out(seed: int, index: int) -> None:
+    from factorloc import Localizer
+    from factorloc.sim import generate_scenario
+
+    scenario = generate_scenario("apartment", 30, seed, faults=("kidnapped",), only_queries=[index])
+    sq = scenario.queries[0]
+    assert "kidnapped" in sq.faults
+    loc = Localizer(scenario.references[0].reference).localize(sq.query)
+    truth = sq.truth
+    odo, icp = loc.step("odometry"), loc.step("icp")
+    # the odometry claims to be reliable but is off by metres: only the consistency gate can drop it
+    assert odo.status is not StepStatus.UNRELIABLE
+    assert math.hypot(odo.estimate.values[0] - truth.x, odo.estimate.values[1] - truth.y) > 0.5
+    assert odo.status is StepStatus.INCONSISTENT or ("partly fused" in odo.reason and "position inconsistent" in odo.reason)
+    # the ICP step's global solution is reliable although it disagrees with the odometry seed
+    assert icp.status is StepStatus.FUSED
+    assert icp.estimate.diagnostics["used_global_init"]
+    assert math.hypot(loc.pose.x - truth.x, loc.pose.y - truth.y) < 0.02
+    assert abs(math.remainder(loc.pose.theta - truth.theta, 2 * math.pi)) < math.radians(1.0)
