@@ -1,13 +1,16 @@
 # The README's commands. Thin wrappers: set up once, then run.
-#   make demo   — set up, then run the main job on the shipped data
-#   make test   — set up, then run the test suite (what CI runs)
+#   make demo   — set up, then run the main job on the shipped sample scenario
+#   make test   — set up, build the documentation (executing the notebooks), then run the test suite (what CI runs)
 SHELL := /bin/bash
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.factorloc-installed
+# mkdocs-typer2 calls the `typer` executable of the virtual environment
+DOCS_ENV := PATH="$(abspath $(BIN)):$$PATH" NO_MKDOCS_2_WARNING=1
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test docs docs-serve browser lint bench clean
 
 # System libraries Open3D's wheel needs, the virtual environment, the package.
 $(STAMP): pyproject.toml
@@ -19,12 +22,11 @@ $(STAMP): pyproject.toml
 	if ! $(PYTHON) -c "import ensurepip, venv" >/dev/null 2>&1; then missing="$$missing python3-venv"; fi; \
 	if [ -n "$$missing" ]; then \
 	  echo "installing system packages:$$missing"; \
-	  if [ "$$(id -u)" = 0 ]; then SUDO=""; else SUDO="sudo"; fi; \
-	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$missing; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
 	fi
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(BIN)/python -m pip install -q -e ".[dev,docs]"
 	@touch $(STAMP)
 
 setup: $(STAMP)
@@ -32,7 +34,21 @@ setup: $(STAMP)
 demo: setup
 	$(BIN)/factorloc demo
 
-test: setup
+# Headless Chromium for the site's smoke check (Debian's package), when it can be installed.
+browser:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  echo "installing chromium for the documentation smoke check"; \
+	  ( $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium ) \
+	  || echo "chromium could not be installed: the site smoke check will be skipped"; }
+
+# Build the site into ./site; the notebooks are executed on the way (docs/hooks.py).
+docs: setup browser
+	$(DOCS_ENV) $(BIN)/mkdocs build --strict -f docs/mkdocs.yml
+
+docs-serve: setup
+	$(DOCS_ENV) $(BIN)/mkdocs serve -f docs/mkdocs.yml
+
+test: docs
 	$(BIN)/python -m pytest -n 2 -q
 
 lint: setup
@@ -40,6 +56,7 @@ lint: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench_fuse.py
+	$(BIN)/factorloc bench
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis site factorloc-demo
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis site factorloc-demo docs/tutorials docs/assets/generated
