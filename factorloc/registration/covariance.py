@@ -33,7 +33,14 @@ import numpy as np
 from factorloc.errors import InputError
 from factorloc.registration.icp2d import IcpResult
 
-__all__ = ["bias_covariance", "censi_covariance", "chamfer_covariance", "hessian_covariance", "safe_inverse"]
+__all__ = [
+    "bias_covariance",
+    "censi_bias_covariance",
+    "censi_covariance",
+    "chamfer_covariance",
+    "hessian_covariance",
+    "safe_inverse",
+]
 
 
 def safe_inverse(h: np.ndarray, max_variance: float, rel_eps: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
@@ -117,3 +124,33 @@ def chamfer_covariance(result: IcpResult, scale: float = 1.0, mean_range_m: floa
     s = max(scale * result.chamfer_m, 1e-4)
     st = s / max(mean_range_m, 1e-3)
     return np.diag([s * s, s * s, st * st])
+
+
+def censi_bias_covariance(result: IcpResult, scale: float, sigma_bias_m: float, max_variance: float = 1e4) -> np.ndarray:
+    """``scale · censi_covariance(result) + bias_covariance(result, sigma_bias_m)`` from one eigen-decomposition of H.
+
+    The same figures as the two calls (to rounding, ~1e-12 m²) when H has
+    full rank for both (the usual case); otherwise it falls back to them.
+    """
+    _check(result)
+    J, w, r = result.jacobians, result.weights, result.residuals_m
+    sw = float(np.sum(w)) if len(w) else 0.0
+    if len(r) >= 4 and sw > 0.0:
+        h = 0.5 * (result.hessian + result.hessian.T)
+        lam, vec = np.linalg.eigh(h)
+        floor = max(1e-9 * max(float(lam[-1]), 0.0), 1.0 / max_variance)
+        if sigma_bias_m > 0.0:
+            floor = max(floor, sw * sigma_bias_m**2 / max_variance)
+        if lam[0] > floor:
+            inv = (vec / lam) @ vec.T
+            meat = (J.T * (w * w * (result.variances_m2 + r * r))) @ J
+            c = inv @ meat @ inv
+            cov = scale * 0.5 * (c + c.T)
+            if sigma_bias_m > 0.0:
+                cov = cov + (sigma_bias_m**2 * sw) * inv
+            if np.all(np.diag(cov) < max_variance):
+                return 0.5 * (cov + cov.T)
+    cov = scale * censi_covariance(result, max_variance)
+    if sigma_bias_m > 0.0:
+        cov = cov + bias_covariance(result, sigma_bias_m, max_variance)
+    return cov

@@ -25,14 +25,14 @@ position of the query robot needs no further Jacobian.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, rot2
 from factorloc.registration.kernels import Cauchy, RobustKernel
+from factorloc.registration.nn import KdTree2D
 from factorloc.registration.scan2d import estimate_normals_2d
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
@@ -69,6 +69,11 @@ class IcpParams:
         residual variance is the sum of its two points'; the IRLS weights are
         multiplied by ``2·sigma_point_m² / σ²_pair`` (far, sparse returns weigh
         less) and the covariance estimators use ``σ²_pair``.
+    reassociate_m
+        At the smallest gate, the nearest neighbours are searched again only
+        once the points have moved by more than this since the last search
+        (0 = every iteration); in between, Gauss–Newton iterates on the same
+        pairs. The final linearisation always uses fresh neighbours.
     """
 
     max_iterations: int = 40
@@ -84,6 +89,7 @@ class IcpParams:
     min_normal_quality: float = 0.5
     sigma_point_m: float = 0.01
     sigma_bearing_rad: float = 0.0
+    reassociate_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -105,22 +111,52 @@ class IcpParams:
                 "IcpParams needs sigma_point_m > 0 and sigma_bearing_rad >= 0, "
                 f"got {self.sigma_point_m!r}, {self.sigma_bearing_rad!r}"
             )
+        if not self.reassociate_m >= 0.0:
+            raise InputError(f"IcpParams.reassociate_m must be >= 0, got {self.reassociate_m!r}")
         if not 0.0 <= self.min_normal_quality < 1.0:
             raise InputError(f"IcpParams.min_normal_quality must be in [0, 1), got {self.min_normal_quality!r}")
 
 
 @dataclass(frozen=True, eq=False)
 class PreparedScan:
-    """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree."""
+    """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree
+    (:class:`~factorloc.registration.nn.KdTree2D`).
+
+    The per-target terms of the residual are precomputed once (``n_ext``:
+    the normals, ``c_ext``: ``nⱼ·pⱼ``, ``range2_ext``: squared ranges), each
+    with one extra row at index M — the index the KD-tree returns for "no
+    neighbour within the gate" — so that one gather serves every iteration.
+    """
 
     points_m: np.ndarray
     normals: np.ndarray
     quality: np.ndarray
-    tree: cKDTree
+    tree: KdTree2D
     ranges_m: np.ndarray
+    n_ext: np.ndarray = field(init=False, repr=False)
+    c_ext: np.ndarray = field(init=False, repr=False)
+    range2_ext: np.ndarray = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        m = len(self.points_m)
+        n_ext = np.zeros((m + 1, 2))
+        n_ext[:m] = self.normals
+        c_ext = np.zeros(m + 1)
+        c_ext[:m] = np.einsum("ij,ij->i", self.normals, self.points_m)
+        r2 = np.zeros(m + 1)
+        r2[:m] = self.ranges_m**2
+        for name, a in (("n_ext", n_ext), ("c_ext", c_ext), ("range2_ext", r2)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
 
     def __len__(self) -> int:
         return int(self.points_m.shape[0])
+
+    def usable(self, min_normal_quality: float) -> np.ndarray:
+        """(M+1,) bool: target points whose normal quality reaches the threshold; False at the no-neighbour index M."""
+        ok = np.zeros(len(self.points_m) + 1, dtype=bool)
+        ok[:-1] = self.quality >= min_normal_quality
+        return ok
 
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
@@ -132,7 +168,7 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
         raise InputError(f"target scan needs >= 3 points, got {len(pts)}")
     if not np.all(np.isfinite(pts)):
         raise InputError("target points_m contains NaN or infinite values")
-    tree = cKDTree(pts)
+    tree = KdTree2D(pts)
     normals, quality = estimate_normals_2d(pts, params.normal_k, params.normal_radius_m, tree)
     ranges = np.hypot(pts[:, 0], pts[:, 1])
     for a in (pts, normals, quality, ranges):
@@ -183,27 +219,35 @@ class IcpResult:
 
 def _linearize(
     target: PreparedScan,
+    usable: np.ndarray,
     q: np.ndarray,
+    j: np.ndarray,
     t: np.ndarray,
-    gate: float,
     kernel: RobustKernel,
     params: IcpParams,
-    var_src: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    d, j = target.tree.query(q, k=1, distance_upper_bound=gate)
-    ok = np.isfinite(d)
-    j = j[ok]
-    ok_idx = np.nonzero(ok)[0]
-    good = target.quality[j] >= params.min_normal_quality
-    j = j[good]
-    src_idx = ok_idx[good]
+    var_src: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """Jacobians (K×3), residuals (K,), IRLS weights (K,) and pair variances (K,) of the pairs ``q_i ↔ p_{j_i}``.
+
+    ``j`` holds the KD-tree's nearest target index per source point (M where
+    none lies within the gate). ``var_src`` None: the noise model is the
+    same for every pair (``sigma_bearing_rad = 0``); the variances are then
+    not returned (None) and the weight factor is 1.
+    """
+    src_idx = np.flatnonzero(usable[j])
+    jj = j[src_idx]
     qi = q[src_idx]
-    n = target.normals[j]
-    r = np.einsum("ij,ij->i", n, qi - target.points_m[j])
-    v = qi - t
-    J = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * v[:, 0] - n[:, 0] * v[:, 1]])
-    var = var_src[src_idx] + params.sigma_point_m**2 + (params.sigma_bearing_rad * target.ranges_m[j]) ** 2
-    w = kernel.weight(r) * (2.0 * params.sigma_point_m**2 / var)
+    n = target.n_ext[jj]
+    J = np.empty((len(jj), 3))
+    J[:, :2] = n
+    # r = n·q − n·p ; third Jacobian column nᵀ·perp(q − t) = n_y (q_x − t_x) − n_x (q_y − t_y)
+    r = n[:, 0] * qi[:, 0] + n[:, 1] * qi[:, 1] - target.c_ext[jj]
+    J[:, 2] = n[:, 1] * (qi[:, 0] - t[0]) - n[:, 0] * (qi[:, 1] - t[1])
+    w = kernel.weight(r)
+    if var_src is None:
+        return J, r, w, None
+    var = var_src[src_idx] + params.sigma_point_m**2 + params.sigma_bearing_rad**2 * target.range2_ext[jj]
+    w = w * (2.0 * params.sigma_point_m**2 / var)
     return J, r, w, var
 
 
@@ -220,6 +264,12 @@ def align(
     linearisation at the solution. Never fails silently: when fewer than 3
     correspondences exist the result has ``n_inliers < 3``, ``converged =
     False`` and a zero Hessian; the caller judges reliability.
+
+    Cost: one batched KD-tree query per iteration (``workers=1``), the
+    residuals gathered from the target's precomputed terms
+    (:class:`PreparedScan`); after convergence one more query (bounded by
+    ``chamfer_cap_m``) serves the final linearisation, the fitness and the
+    source half of the Chamfer distance.
     """
     src = np.asarray(source_points_m, dtype=np.float64)
     if src.ndim != 2 or src.shape[1] != 2:
@@ -229,54 +279,95 @@ def align(
     if not isinstance(T_init, Pose2):
         raise InputError(f"T_init must be a Pose2, got {type(T_init).__name__}")
     kernel = Cauchy(0.05) if kernel is None else kernel
-    rho_rms = float(np.sqrt(np.mean(np.sum(src * src, axis=1))))
-    var_src = params.sigma_point_m**2 + (params.sigma_bearing_rad * np.hypot(src[:, 0], src[:, 1])) ** 2
+    usable = target.usable(params.min_normal_quality)
+    tree = target.tree
+    rho_rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", src, src))))
+    sp2 = params.sigma_point_m**2
+    var_src = None if params.sigma_bearing_rad == 0.0 else sp2 + params.sigma_bearing_rad**2 * np.einsum("ij,ij->i", src, src)
     theta = T_init.theta
     t = np.array([T_init.x, T_init.y])
     converged = False
     it = 0
-    gate = params.max_correspondence_m
+    min_gate = params.min_correspondence_m
+    nx_e, ny_e, c_e = target.n_ext[:, 0].copy(), target.n_ext[:, 1].copy(), target.c_ext
+    rho_max = float(np.sqrt(np.max(np.einsum("ij,ij->i", src, src))))
+    moved = math.inf  # largest point motion since the last association (m)
+    last_gate = -1.0
     for it in range(1, params.max_iterations + 1):
-        gate = max(params.min_correspondence_m, params.max_correspondence_m * params.shrink ** (it - 1))
-        q = src @ rot2(theta).T + t
-        J, r, w, _ = _linearize(target, q, t, gate, kernel, params, var_src)
-        if len(r) < 3:
+        gate = max(min_gate, params.max_correspondence_m * params.shrink ** (it - 1))
+        q = src @ rot2(theta).T
+        q += t
+        if gate != last_gate or moved > params.reassociate_m:
+            # one batched KD-tree query; every source point takes part, those without a usable target
+            # point (j = M, or a poor normal) with weight 0
+            _, j = tree.query(q, k=1, distance_upper_bound=gate, workers=1)
+            ok = usable[j]
+            if np.count_nonzero(ok) < 3:
+                break
+            nx, ny, cj = nx_e[j], ny_e[j], c_e[j]
+            if var_src is None:
+                w_pair = ok
+            else:
+                w_pair = ok * (2.0 * sp2 / (var_src + sp2 + params.sigma_bearing_rad**2 * target.range2_ext[j]))
+            J = np.empty((3, len(src)))
+            J[0] = nx
+            J[1] = ny
+            moved, last_gate = 0.0, gate
+        qx, qy = q[:, 0], q[:, 1]
+        r = nx * qx + ny * qy - cj
+        J[2] = ny * (qx - t[0]) - nx * (qy - t[1])
+        w = kernel.weight(r) * w_pair
+        Jw = J * w
+        (h00, h01, h02), (_, h11, h12), (_, _, h22) = (Jw @ J.T).tolist()
+        g0, g1, g2 = (Jw @ r).tolist()
+        h00 += 1e-9
+        h11 += 1e-9
+        h22 += 1e-9
+        # δ = −H⁻¹ g for the symmetric 3×3 H (cofactors)
+        c00 = h11 * h22 - h12 * h12
+        c01 = h02 * h12 - h01 * h22
+        c02 = h01 * h12 - h02 * h11
+        det = h00 * c00 + h01 * c01 + h02 * c02
+        if not abs(det) > 1e-300 or not math.isfinite(det):
             break
-        Jw = J * w[:, None]
-        H = Jw.T @ J
-        g = Jw.T @ r
-        try:
-            delta = -np.linalg.solve(H + 1e-9 * np.eye(3), g)
-        except np.linalg.LinAlgError:
-            break
+        c11 = h00 * h22 - h02 * h02
+        c12 = h01 * h02 - h00 * h12
+        c22 = h00 * h11 - h01 * h01
+        dx = -(c00 * g0 + c01 * g1 + c02 * g2) / det
+        dy = -(c01 * g0 + c11 * g1 + c12 * g2) / det
+        dth = -(c02 * g0 + c12 * g1 + c22 * g2) / det
         # trust region: no step longer than the correspondence gate (a point moves at most ~gate)
-        step = math.hypot(delta[0], delta[1]) + abs(delta[2]) * rho_rms
+        step = math.hypot(dx, dy) + abs(dth) * rho_rms
         if step > gate:
-            delta = delta * (gate / step)
+            f = gate / step
+            dx, dy, dth = dx * f, dy * f, dth * f
         # apply: rotate about the source origin t, then translate
-        theta += delta[2]
-        t = t + delta[:2]
+        theta += dth
+        t[0] += dx
+        t[1] += dy
+        moved += math.hypot(dx, dy) + abs(dth) * rho_max
         if (
-            gate <= params.min_correspondence_m
-            and math.hypot(delta[0], delta[1]) < params.convergence_translation_m
-            and abs(delta[2]) < params.convergence_rotation_rad
+            gate <= min_gate
+            and math.hypot(dx, dy) < params.convergence_translation_m
+            and abs(dth) < params.convergence_rotation_rad
         ):
             converged = True
             break
     T = Pose2(float(t[0]), float(t[1]), float(theta))
-    q = src @ rot2(T.theta).T + np.array([T.x, T.y])
-    J, r, w, var = _linearize(target, q, np.array([T.x, T.y]), params.min_correspondence_m, kernel, params, var_src)
-    H = (J * w[:, None]).T @ J if len(r) else np.zeros((3, 3))
-    d_src, _ = target.tree.query(q, k=1)
-    inl = d_src < params.fitness_distance_m
-    fitness = float(np.mean(inl))
+    q = src @ rot2(T.theta).T
+    q += t
+    cap = params.chamfer_cap_m
+    d_src, j = tree.query(q, k=1, distance_upper_bound=max(cap, min_gate, params.fitness_distance_m), workers=1)
+    j = np.where(d_src < min_gate, j, len(target))  # the final linearisation uses the smallest gate
+    J, r, w, var = _linearize(target, usable, q, j, t, kernel, params, var_src if var_src is not None else np.full(len(src), sp2))
+    H = (J.T * w) @ J if len(r) else np.zeros((3, 3))
+    fitness = float(np.count_nonzero(d_src < params.fitness_distance_m)) / len(src)
     if len(r):
         rin = r[np.abs(r) < params.fitness_distance_m]
         rmse = float(np.sqrt(np.mean(rin**2))) if len(rin) else float("inf")
     else:
         rmse = float("inf")
-    d_tgt, _ = cKDTree(q).query(target.points_m, k=1)
-    cap = params.chamfer_cap_m
+    d_tgt, _ = KdTree2D(q).query(target.points_m, k=1, distance_upper_bound=cap, workers=1)
     chamfer = 0.5 * (float(np.mean(np.minimum(d_src, cap))) + float(np.mean(np.minimum(d_tgt, cap))))
     for a in (H, J, r, w, var):
         a.setflags(write=False)

@@ -10,9 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
+from factorloc.registration.nn import KdTree2D
 from factorloc.types import PointCloud, Scan
 
 __all__ = [
@@ -123,7 +123,7 @@ def estimate_normals_2d(
     points_m: np.ndarray,
     k: int = 7,
     max_radius_m: float = 0.5,
-    tree: cKDTree | None = None,
+    tree: KdTree2D | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Line normals and their quality by PCA over the ``k`` nearest neighbours.
 
@@ -142,21 +142,22 @@ def estimate_normals_2d(
     n = len(pts)
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0)
-    tree = cKDTree(pts) if tree is None else tree
+    tree = KdTree2D(pts) if tree is None else tree
     kk = min(k, n)
-    d, idx = tree.query(pts, k=kk, distance_upper_bound=max_radius_m)
+    d, idx = tree.query(pts, k=kk, distance_upper_bound=max_radius_m, workers=1)
     d = d.reshape(n, kk)
     idx = idx.reshape(n, kk)
-    valid = np.isfinite(d)
-    idx_c = np.where(valid, idx, 0)
-    nb = pts[idx_c]  # n×k×2
-    w = valid.astype(np.float64)
-    cnt = w.sum(axis=1)
-    mean = (nb * w[..., None]).sum(axis=1) / np.maximum(cnt, 1.0)[:, None]
-    c = (nb - mean[:, None, :]) * w[..., None]
-    sxx = (c[..., 0] ** 2).sum(axis=1)
-    syy = (c[..., 1] ** 2).sum(axis=1)
-    sxy = (c[..., 0] * c[..., 1]).sum(axis=1)
+    valid = d < np.inf
+    # neighbours relative to the point itself (no cancellation), missing ones at offset 0 with weight 0
+    rel = pts[np.where(valid, idx, np.arange(n)[:, None])] - pts[:, None, :]  # n×k×2
+    ux, uy = rel[..., 0], rel[..., 1]
+    cnt = valid.sum(axis=1).astype(np.float64)
+    inv = 1.0 / np.maximum(cnt, 1.0)
+    mx, my = ux.sum(axis=1) * inv, uy.sum(axis=1) * inv
+    # scatter Σ (u − ū)(u − ū)ᵀ = Σ u uᵀ − cnt · ū ūᵀ (missing neighbours add 0 to every sum)
+    sxx = np.einsum("ij,ij->i", ux, ux) - cnt * mx * mx
+    syy = np.einsum("ij,ij->i", uy, uy) - cnt * my * my
+    sxy = np.einsum("ij,ij->i", ux, uy) - cnt * mx * my
     # closed-form eigen-decomposition of the 2×2 symmetric [[sxx, sxy], [sxy, syy]]
     tr = sxx + syy
     det_term = np.sqrt(np.maximum((sxx - syy) ** 2 + 4.0 * sxy * sxy, 0.0))
@@ -165,12 +166,13 @@ def estimate_normals_2d(
     # direction of the line (largest eigenvalue): angle 0.5·atan2(2 sxy, sxx - syy)
     phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     normals = np.column_stack([-np.sin(phi), np.cos(phi)])
-    quality = np.where(lmax > 0.0, 1.0 - lmin / np.maximum(lmax, 1e-300), 0.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quality = np.where(lmax > 0.0, 1.0 - lmin / lmax, 0.0)
     poor = cnt < 3
-    to_sensor = -pts / np.maximum(np.linalg.norm(pts, axis=1), 1e-12)[:, None]
+    to_sensor = -pts / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-12)[:, None]
     normals[poor] = to_sensor[poor]
     quality[poor] = 0.0
-    flip = np.einsum("ij,ij->i", normals, to_sensor) < 0.0
+    flip = normals[:, 0] * to_sensor[:, 0] + normals[:, 1] * to_sensor[:, 1] < 0.0
     normals[flip] *= -1.0
     return normals, np.clip(quality, 0.0, 1.0)
 
@@ -196,7 +198,8 @@ def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0
     if gap_free_m > 0.0 and empty.any() and not empty.all():
         # for every bin, the nearest non-empty bin before and after it (circularly, vectorized)
         idx = np.arange(3 * n_bins)
-        full = np.tile(~empty, 3)
+        seen = ~empty
+        full = np.concatenate((seen, seen, seen))
         prev = np.maximum.accumulate(np.where(full, idx, -1))[n_bins : 2 * n_bins]
         nxt = np.minimum.accumulate(np.where(full, idx, 3 * n_bins)[::-1])[::-1][n_bins : 2 * n_bins]
         gap = nxt - prev - 1
@@ -226,4 +229,4 @@ def free_space_violation(
     rho = np.hypot(pts[:, 0], pts[:, 1])
     with np.errstate(invalid="ignore"):
         bad = rho < free - np.maximum(margin_m, margin_ratio * free)
-    return float(np.mean(bad & np.isfinite(free)))
+    return float(np.count_nonzero(bad & np.isfinite(free))) / len(pts)
