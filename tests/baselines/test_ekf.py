@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import position_errors
+from synthetic_trajectories import position_errors
 
 from factorloc.baselines import ExtendedKalmanFilter
 from factorloc.baselines.common import MotionModel, compose_with_covariance

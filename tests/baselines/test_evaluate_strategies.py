@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import BOUNDS
+from synthetic_trajectories import BOUNDS
 
 from factorloc.baselines import ExtendedKalmanFilter, MarkovGridLocalization, MonteCarloLocalization
 from factorloc.evaluation import evaluate
@@ -41,7 +41,7 @@ STRATEGIES = {
 
 @pytest.fixture(scope="module")
 def run():
-    from conftest import make_synthetic
+    from synthetic_trajectories import make_synthetic
 
     return make_synthetic(24, seed=7, no_icp=(8, 12), outlier_at=3).run()
 

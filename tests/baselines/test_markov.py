@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import BOUNDS, position_errors
+from synthetic_trajectories import BOUNDS, position_errors
 
 from factorloc.baselines import MarkovGridLocalization
 from factorloc.errors import InputError

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import BOUNDS, position_errors
+from synthetic_trajectories import BOUNDS, position_errors
 
 from factorloc.baselines import MonteCarloLocalization
 from factorloc.baselines.mcl import low_variance_resample, weighted_mean_covariance
