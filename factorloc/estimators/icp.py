@@ -92,6 +92,12 @@ class IcpConfig:
     global_init
         Use the correlative global search when no reliable seed exists or the
         seeded ICP is unreliable.
+    global_widen
+        When the global search in the window bounded by the seeds finds
+        nothing reliable, search again over the full ``global_search.radius_m``
+        around the position seed and the full circle of headings: the seeds
+        of a kidnapped robot are confidently wrong (odometry σ of centimetres,
+        off by metres and tens of degrees).
     global_search
         Its grid (the translation window is ``radius_m`` around the seed
         position, or around the reference origin without a position seed).
@@ -175,6 +181,7 @@ class IcpConfig:
     kernel: str = "cauchy"
     kernel_scale_m: float = 0.05
     global_init: bool = True
+    global_widen: bool = True
     global_search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
     global_refine: int = 10
     ambiguity_ratio: float = 0.9
@@ -513,34 +520,46 @@ def estimate(
         seed_reason = f"seeded by {pos[4]}/{head[2]}"
         if not verdict.reliable:
             log.debug("seeded ICP unreliable (%s)", verdict.reason)
-    # a seeded failure due to degenerate geometry is not cured by searching elsewhere: the scan is the same
-    degenerate = result is not None and strength < config.min_constraint
+    # a seeded failure due to degenerate geometry is not cured by searching elsewhere: the scan is the same. But a
+    # seeded ICP that barely overlaps (a kidnapped robot's seed) matched a few points of one wall: its weak
+    # constraint says nothing about the scan
+    degenerate = result is not None and strength < config.min_constraint and result.fitness >= config.min_fitness
     if not verdict.reliable and config.global_init and not degenerate:
-        radius = config.global_search.radius_m
+        full_radius = config.global_search.radius_m
         if pos is not None:
             center_w = np.array([pos[0], pos[1]])
             center = tuple(T_rw.transform_points(center_w[None, :])[0])
             # a reliable position seed bounds the search: within its 3σ (and a margin)
-            radius = min(radius, config.seed_radius_margin_m + 3.0 * max(pos[2], pos[3]))
+            radius = min(full_radius, config.seed_radius_margin_m + 3.0 * max(pos[2], pos[3]))
         else:
-            center = (0.0, 0.0)
+            center, radius = (0.0, 0.0), full_radius
         if head is not None:
             heading = head[0] - T_wr.theta
             half = min(math.pi, max(config.seed_heading_window_rad, 3.0 * head[1]))
         else:
             heading, half = 0.0, math.pi
+        windows = [(radius, heading, half)]
+        if config.global_widen and (radius < full_radius or half < math.pi):
+            # the seeds bounding the window may be confidently wrong (a kidnapped robot's odometry, and the
+            # headings seeded by it): when nothing reliable lies inside, search the whole window around it
+            windows.append((full_radius, 0.0, math.pi))
         if profile is None:
             profile = polar_profile(pts, gap_free_m=config.gap_free_m)
-        g, g_v, score, rival, n_cands = _global(prepared, pts, profile, config, center, heading, half, radius)
-        if g is not None:
+        for w_radius, w_heading, w_half in windows:
+            g, g_v, g_score, g_rival, g_n = _global(prepared, pts, profile, config, center, w_heading, w_half, w_radius)
+            if g is None:
+                continue
             g_cov = _covariance(g, config)
             g_strength = constraint_strength(g)
             g_verdict = _judge(g, g_cov, config, g_v, g_strength)
-            if g_verdict.reliable and rival >= config.ambiguity_ratio * score:
-                g_verdict = _Verdict(False, f"ambiguous: a distinct solution scores {rival:.2f} vs {score:.2f}")
+            if g_verdict.reliable and g_rival >= config.ambiguity_ratio * g_score:
+                g_verdict = _Verdict(False, f"ambiguous: a distinct solution scores {g_rival:.2f} vs {g_score:.2f}")
             if result is None or g_verdict.reliable or g.fitness > result.fitness:
                 result, cov, verdict, used_global, violation, strength = g, g_cov, g_verdict, True, g_v, g_strength
-                seed_reason = "global initialization"
+                score, rival, n_cands = g_score, g_rival, g_n
+                seed_reason = "global initialization" + ("" if w_radius == radius and w_half == half else ", widened")
+            if verdict.reliable:
+                break
     if result is None:
         # no seed and global initialization disabled: nothing to align from
         reason = "no reliable position and heading hypothesis, and global initialization is disabled"
