@@ -132,7 +132,14 @@ def _score_lattice(
     t_lo: np.ndarray,
     n_steps: tuple[int, int],
 ) -> np.ndarray:
-    """Scores (A, Kx, Ky) of poses ``(t_lo + res·(kx, ky), θ_a)``: mean field value under the query points."""
+    """Scores (A, Kx, Ky) of poses ``(t_lo + res·(kx, ky), θ_a)``: mean field value under the query points.
+
+    For a query point in cell ``(bx, by)`` at translation offset ``(0, 0)``,
+    the values at all offsets are the field's ``Kx × Ky`` window starting at
+    that cell: one gather of windows (a strided view of the field, zero-padded
+    so that every window lies inside) scores every translation of every
+    heading; cells outside the field count as 0.
+    """
     res = field.resolution_m
     F = field.values
     c, s = np.cos(thetas), np.sin(thetas)
@@ -141,13 +148,13 @@ def _score_lattice(
     ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
     bx = np.floor((rx + t_lo[0] - field.origin_m[0]) / res + 1e-9).astype(np.int64)
     by = np.floor((ry + t_lo[1] - field.origin_m[1]) / res + 1e-9).astype(np.int64)
-    kx = np.arange(n_steps[0])
-    ky = np.arange(n_steps[1])
-    ix = bx[:, :, None, None] + kx[None, None, :, None]
-    iy = by[:, :, None, None] + ky[None, None, None, :]
-    inside = (ix >= 0) & (ix < F.shape[0]) & (iy >= 0) & (iy < F.shape[1])
-    vals = np.where(inside, F[np.clip(ix, 0, F.shape[0] - 1), np.clip(iy, 0, F.shape[1] - 1)], 0.0)
-    return vals.mean(axis=1)
+    kx, ky = n_steps
+    px0, px1 = max(0, -int(bx.min())), max(0, int(bx.max()) + kx - F.shape[0])
+    py0, py1 = max(0, -int(by.min())), max(0, int(by.max()) + ky - F.shape[1])
+    if px0 or px1 or py0 or py1:
+        F = np.pad(F, ((px0, px1), (py0, py1)))
+    windows = np.lib.stride_tricks.sliding_window_view(F, (kx, ky))
+    return windows[bx + px0, by + py0].mean(axis=1)
 
 
 def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
