@@ -18,12 +18,16 @@ def seven_estimates(rng: np.random.Generator) -> list[Estimate]:
     truth = Pose2(1.0, 0.5, math.radians(170.0))
     noisy = lambda s: rng.normal(scale=s)  # noqa: E731
     return [
-        Estimate.pose("odometry", Pose2(truth.x + noisy(0.05), truth.y + noisy(0.05), truth.theta + noisy(0.05)), 0.05, 0.05, 0.05),
+        Estimate.pose(
+            "odometry", Pose2(truth.x + noisy(0.05), truth.y + noisy(0.05), truth.theta + noisy(0.05)), 0.05, 0.05, 0.05
+        ),
         Estimate.heading("compass", truth.theta + noisy(0.01), 0.01),
         Estimate.heading("compass2", truth.theta + noisy(0.01), 0.01),
         Estimate.heading("correlation", truth.theta + noisy(0.005), 0.005),
         Estimate.position("icp", truth.x + noisy(0.02), truth.y + noisy(0.02), 0.02, 0.02),
-        Estimate.position("icp2", truth.x + noisy(0.02), truth.y + noisy(0.02), covariance=np.array([[4e-4, 1e-4], [1e-4, 9e-4]])),
+        Estimate.position(
+            "icp2", truth.x + noisy(0.02), truth.y + noisy(0.02), covariance=np.array([[4e-4, 1e-4], [1e-4, 9e-4]])
+        ),
         Estimate.pose("beacon", Pose2(truth.x + noisy(0.1), truth.y + noisy(0.1), truth.theta + noisy(0.1)), 0.1, 0.1, 0.1),
     ]
 
@@ -55,8 +59,10 @@ def main() -> None:
     print(f"  ratio graph/product (strategy only): {rows[1][1] / rows[0][1]:.1f}×")
     print(f"  ratio graph/product (with gating):   {rows[3][1] / rows[2][1]:.1f}×")
     p, g = ProductFusion().fuse(ests), GraphFusion().fuse(ests)
-    print(f"  agreement: |Δpose| = {np.abs(p.pose.as_array() - g.pose.as_array()).max():.2e}, "
-          f"|Δcov|/|cov| = {np.abs(p.covariance - g.covariance).max() / np.abs(p.covariance).max():.2e}")
+    print(
+        f"  agreement: |Δpose| = {np.abs(p.pose.as_array() - g.pose.as_array()).max():.2e}, "
+        f"|Δcov|/|cov| = {np.abs(p.covariance - g.covariance).max() / np.abs(p.covariance).max():.2e}"
+    )
 
 
 if __name__ == "__main__":

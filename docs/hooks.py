@@ -74,12 +74,17 @@ def home_figure() -> None:
     ax.plot(case.truth.x, case.truth.y, "o", ms=7, mfc="none", mec="#1b4965", label="true pose")
     ax.plot(loc.pose.x, loc.pose.y, "x", ms=8, color="#d1495b", label="factorloc estimate")
     arrow = 0.45
-    ax.annotate("", xy=(loc.pose.x + arrow * math.cos(loc.pose.theta), loc.pose.y + arrow * math.sin(loc.pose.theta)),
-                xytext=(loc.pose.x, loc.pose.y), arrowprops={"arrowstyle": "-|>", "color": "#d1495b"})
+    ax.annotate(
+        "",
+        xy=(loc.pose.x + arrow * math.cos(loc.pose.theta), loc.pose.y + arrow * math.sin(loc.pose.theta)),
+        xytext=(loc.pose.x, loc.pose.y),
+        arrowprops={"arrowstyle": "-|>", "color": "#d1495b"},
+    )
     if not loc.undetermined:
         scale = 20.0
-        plot_covariance_ellipse_on_axes(ax, (loc.pose.x, loc.pose.y), loc.covariance[:2, :2] * scale**2, lw=1.5,
-                                        label=f"95 % covariance ellipse ×{scale:.0f}")
+        plot_covariance_ellipse_on_axes(
+            ax, (loc.pose.x, loc.pose.y), loc.covariance[:2, :2] * scale**2, lw=1.5, label=f"95 % covariance ellipse ×{scale:.0f}"
+        )
     sx, sy, st = loc.sigmas
     ax.set_title(f"query {case.id}: σx {100 * sx:.1f} cm, σy {100 * sy:.1f} cm, σθ {math.degrees(st):.2f}°")
     ax.legend(loc="upper right", fontsize=8)

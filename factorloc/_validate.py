@@ -51,7 +51,7 @@ def float_array(name: str, value: Any, shape: tuple[int | None, ...], *, min_row
             raise InputError(f"{name} is not array-like: {exc}") from exc
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
         raise InputError(f"{name} must be a numeric array, got dtype {arr.dtype}")
-    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape, strict=True)):
         want = "×".join("N" if s is None else str(s) for s in shape)
         raise InputError(f"{name} must have shape {want}, got {arr.shape}")
     if arr.ndim >= 1 and arr.shape[0] < min_rows:

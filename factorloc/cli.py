@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any
 
 import typer
 from rich import box
@@ -40,7 +40,7 @@ def _version(value: bool) -> None:
 @app.callback()
 def main(
     version: Annotated[
-        Optional[bool], typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
+        bool | None, typer.Option("--version", callback=_version, is_eager=True, help="Print the version and exit.")
     ] = None,
 ) -> None:
     """factorloc command line."""
@@ -53,7 +53,7 @@ def _fmt_estimate(est: factorloc.Estimate | None) -> tuple[str, str]:
     if est is None:
         return "—", "—"
     parts, sig = [], []
-    for c, v, s in zip(est.components, est.values, est.sigmas):
+    for c, v, s in zip(est.components, est.values, est.sigmas, strict=True):
         if c is factorloc.Component.THETA:
             parts.append(f"θ={math.degrees(v):.2f}°")
             sig.append(f"{math.degrees(s):.2f}°")
@@ -130,7 +130,9 @@ def _load_estimates(path: Path) -> list[factorloc.Estimate]:
 # ----------------------------------------------------------------------------
 @app.command()
 def fuse(
-    estimates: Annotated[Path, typer.Argument(help="JSON file: a list of estimates (step, components, values, sigmas or covariance).")],
+    estimates: Annotated[
+        Path, typer.Argument(help="JSON file: a list of estimates (step, components, values, sigmas or covariance).")
+    ],
     strategy: Annotated[str, typer.Option(help="Fusion strategy: 'graph' (GTSAM) or 'product' (closed form).")] = "graph",
     json_out: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:
@@ -254,7 +256,7 @@ def gate_reasons_text(out: dict[str, Any], per_step: int = 2) -> str:
     return "\n".join(["[bold]Why steps were not fused[/] (most frequent, numbers masked as #)", *lines]) if lines else ""
 
 
-def _load_config(path: Optional[Path]) -> factorloc.Config | None:
+def _load_config(path: Path | None) -> factorloc.Config | None:
     return None if path is None else factorloc.Config.from_yaml(path)
 
 
@@ -280,11 +282,11 @@ def _run_evaluation(scenario: Any, cfg: factorloc.Config | None, label: str) -> 
 @app.command()
 def evaluate(
     scenario: Annotated[Path, typer.Argument(help="Scenario directory (scenario.yaml, see docs/data-format.md).")],
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
     json_out: Annotated[
-        Optional[Path], typer.Option("--json", help="Write every figure as JSON (keys in docs/evaluation.md).")
+        Path | None, typer.Option("--json", help="Write every figure as JSON (keys in docs/evaluation.md).")
     ] = None,
-    plot: Annotated[Optional[Path], typer.Option("--plot", help="Write the figures (PNG) into this directory.")] = None,
+    plot: Annotated[Path | None, typer.Option("--plot", help="Write the figures (PNG) into this directory.")] = None,
 ) -> None:
     """Localize every query of a scenario; report accuracy, honesty, availability and speed."""
     from factorloc.datasets import load_scenario
@@ -413,18 +415,18 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
 @app.command()
 def bench(
     json_out: Annotated[
-        Optional[Path], typer.Option("--json", help="Write the figures as JSON (keys in docs/evaluation.md).")
+        Path | None, typer.Option("--json", help="Write the figures as JSON (keys in docs/evaluation.md).")
     ] = None,
     queries: Annotated[
-        Optional[int],
+        int | None,
         typer.Option("--queries", min=1, help="Queries of the generated scenario (default 200), or the first N of --scenario."),
     ] = None,
     scenario: Annotated[
-        Optional[Path], typer.Option("--scenario", help="Benchmark this scenario directory instead of generating one.")
+        Path | None, typer.Option("--scenario", help="Benchmark this scenario directory instead of generating one.")
     ] = None,
     seed: Annotated[int, typer.Option("--seed", help="Seed of the generated scenario.")] = 7,
     repeats: Annotated[int, typer.Option("--repeats", min=1, help="Passes over the queries (figures are medians).")] = 3,
-    config: Annotated[Optional[Path], typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
 ) -> None:
     """Speed as ratios against peers in the same run: localize, seeded vs blind, ICP vs Open3D, GTSAM vs product, cost curve."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -558,7 +560,7 @@ def simulate(
 def localize(
     scenario: Annotated[Path, typer.Argument(help="A scenario directory (docs/data-format.md), e.g. data/sample.")],
     query_id: Annotated[str, typer.Argument(help="The id of the query to localize (e.g. q0003).")],
-    config: Annotated[Optional[Path], typer.Option("--config", help="A YAML config (keys as in factorloc.Config).")] = None,
+    config: Annotated[Path | None, typer.Option("--config", help="A YAML config (keys as in factorloc.Config).")] = None,
     blind: Annotated[bool, typer.Option("--blind", help="Run every step without the hypotheses of the earlier ones.")] = False,
     json_out: Annotated[bool, typer.Option("--json", help="Print JSON instead of tables.")] = False,
 ) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import Enum
+from enum import StrEnum
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
@@ -30,7 +30,7 @@ if TYPE_CHECKING:  # pragma: no cover
 # --------------------------------------------------------------------------
 # Components
 # --------------------------------------------------------------------------
-class Component(str, Enum):
+class Component(StrEnum):
     """A pose component an estimate can measure."""
 
     X = "x"
@@ -353,7 +353,9 @@ class CameraImage:
         if fov >= math.pi:
             raise InputError(f"CameraImage.hfov_rad must be < π for a pinhole camera, got {fov!r}")
         object.__setattr__(self, "hfov_rad", fov)
-        object.__setattr__(self, "yaw_in_robot_rad", wrap_angle(finite_float("CameraImage.yaw_in_robot_rad", self.yaw_in_robot_rad)))
+        object.__setattr__(
+            self, "yaw_in_robot_rad", wrap_angle(finite_float("CameraImage.yaw_in_robot_rad", self.yaw_in_robot_rad))
+        )
         object.__setattr__(self, "pitch_rad", finite_float("CameraImage.pitch_rad", self.pitch_rad))
         if self.cx_px is not None:
             object.__setattr__(self, "cx_px", finite_float("CameraImage.cx_px", self.cx_px))
@@ -382,7 +384,9 @@ class CameraImage:
 
     def azimuth_of_column(self, u: float | np.ndarray) -> float | np.ndarray:
         """Azimuth in the robot frame (rad) of image column ``u``: yaw + atan((cx - u)/f)."""
-        return wrap_angle(self.yaw_in_robot_rad + np.arctan((self.principal_x_px - np.asarray(u, dtype=np.float64)) / self.focal_px))
+        return wrap_angle(
+            self.yaw_in_robot_rad + np.arctan((self.principal_x_px - np.asarray(u, dtype=np.float64)) / self.focal_px)
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -523,7 +527,7 @@ def _check_type(name: str, value: Any, cls: type) -> None:
 # --------------------------------------------------------------------------
 # Results
 # --------------------------------------------------------------------------
-class StepStatus(str, Enum):
+class StepStatus(StrEnum):
     """What became of one step's estimate."""
 
     FUSED = "fused"
@@ -610,7 +614,12 @@ class Localization:
         """JSON-ready: pose, covariance (``null`` where infinite), sigmas, steps."""
         cov = [[None if not math.isfinite(v) else v for v in row] for row in self.covariance.tolist()]
         return {
-            "pose": {"x_m": self.pose.x, "y_m": self.pose.y, "theta_rad": self.pose.theta, "theta_deg": math.degrees(self.pose.theta)},
+            "pose": {
+                "x_m": self.pose.x,
+                "y_m": self.pose.y,
+                "theta_rad": self.pose.theta,
+                "theta_deg": math.degrees(self.pose.theta),
+            },
             "covariance": cov,
             "sigmas": {
                 "x_m": _finite_or_none(self.sigmas[0]),

@@ -41,7 +41,11 @@ def test_fuse_json_reproduces_the_hand_computed_patent_example(repo_root: Path) 
     assert abs(cov[0][1]) < 1e-15 and cov[0][2] == 0.0
     assert [s["status"] for s in out["steps"]] == ["fused"] * 4
     # the closed form prints the same numbers
-    product = json.loads(runner.invoke(app, ["fuse", str(repo_root / "data/examples/patent_example.json"), "--json", "--strategy", "product"]).output)
+    product = json.loads(
+        runner.invoke(
+            app, ["fuse", str(repo_root / "data/examples/patent_example.json"), "--json", "--strategy", "product"]
+        ).output
+    )
     assert math.isclose(product["pose"]["x_m"], x, rel_tol=1e-12)
 
 
@@ -64,12 +68,22 @@ def _room_scenario(path: Path, n: int = 4) -> Path:
     from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference, save_scenario
 
     rng = np.random.default_rng(5)
-    segments = [((0, 0), (5, 0)), ((5, 0), (5, 4)), ((5, 4), (0, 4)), ((0, 4), (0, 0)),
-                ((2, 1.5), (3, 1.5)), ((3, 1.5), (3, 2.2)), ((3, 2.2), (2, 2.2)), ((2, 2.2), (2, 1.5))]
+    segments = [
+        ((0, 0), (5, 0)),
+        ((5, 0), (5, 4)),
+        ((5, 4), (0, 4)),
+        ((0, 4), (0, 0)),
+        ((2, 1.5), (3, 1.5)),
+        ((3, 1.5), (3, 2.2)),
+        ((3, 2.2), (2, 2.2)),
+        ((2, 2.2), (2, 1.5)),
+    ]
 
     def room() -> np.ndarray:
-        pts = [np.array(a, float) + rng.uniform(0, 1, (int(30 * math.dist(a, b)), 1)) * (np.array(b, float) - np.array(a, float))
-               for a, b in segments]
+        pts = [
+            np.array(a, float) + rng.uniform(0, 1, (int(30 * math.dist(a, b)), 1)) * (np.array(b, float) - np.array(a, float))
+            for a, b in segments
+        ]
         return np.vstack(pts)
 
     T_ref = factorloc.Pose2(1.0, 1.0, 0.3)
@@ -90,14 +104,27 @@ def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Pat
     assert result.exit_code == 0, result.output
     assert "room: fused pose" in result.output and "icp" in result.output
     out = json.loads((tmp_path / "out.json").read_text())
-    for key in ("position_rmse_m", "position_median_m", "heading_rmse_deg", "heading_median_deg", "nees_mean",
-                "outside_99_rate", "confidently_wrong_rate", "latency_median_ms", "latency_p95_ms"):
+    for key in (
+        "position_rmse_m",
+        "position_median_m",
+        "heading_rmse_deg",
+        "heading_median_deg",
+        "nees_mean",
+        "outside_99_rate",
+        "confidently_wrong_rate",
+        "latency_median_ms",
+        "latency_p95_ms",
+    ):
         assert key in out and key in out["by_fault"]["blur"], key
     assert out["queries"] == 4 and out["steps"]["icp"]["reliable_rate"] == 1.0
     assert out["steps"]["compass"]["gate_reasons"] == {"skipped: inputs absent": 4}
     assert out["position_rmse_m"] < 0.01  # exact scans: ICP recovers the pose; the 5 cm odometry error is gone
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
-        "availability.png", "calibration.png", "error_vs_distance.png", "floor_plan.png"]
+        "availability.png",
+        "calibration.png",
+        "error_vs_distance.png",
+        "floor_plan.png",
+    ]
 
 
 def test_evaluate_fails_cleanly_on_a_missing_scenario(tmp_path: Path) -> None:
@@ -124,7 +151,11 @@ def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path:
     assert out["queries"] == 30 and set(out["steps"]) == {"odometry", "compass", "correlation", "icp"}
     assert out["steps"]["odometry"]["status_rates"]["skipped"] == 0.0  # every sample query carries odometry
     assert {p.name for p in (tmp_path / "demo").glob("*.png")} == {
-        "availability.png", "calibration.png", "error_vs_distance.png", "floor_plan.png"}
+        "availability.png",
+        "calibration.png",
+        "error_vs_distance.png",
+        "floor_plan.png",
+    }
 
 
 def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> None:
@@ -132,19 +163,45 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
 
     from factorloc.cli import bench_tables
 
-    point = {"factor": 1.0, "panorama_width_px": 2048, "reference_cloud_points": 10240, "reference_scan_points": 360,
-             "query_cloud_points_median": 4800.0, "median_ms": 25.5, "steps_median_ms": {"icp": 3.25}}
+    point = {
+        "factor": 1.0,
+        "panorama_width_px": 2048,
+        "reference_cloud_points": 10240,
+        "reference_scan_points": 360,
+        "query_cloud_points_median": 4800.0,
+        "median_ms": 25.5,
+        "steps_median_ms": {"icp": 3.25},
+    }
     out = {
-        "scenario": "s", "queries": 1,
+        "scenario": "s",
+        "queries": 1,
         "localize": {"repeats": 1, "median_ms": 25.5, "p95_ms": 30.0, "mean_ms": 26.0, "steps": {}},
-        "hierarchy": {"seeded": {"median_ms": 10.0, "false_positive_count": 0, "steps_false_positive_count": {},
-                                 "steps_reliable_rate": {}, "confidently_wrong_rate": 0.0},
-                      "blind": {"median_ms": 40.0, "false_positive_count": 3, "steps_false_positive_count": {},
-                                "steps_reliable_rate": {}, "confidently_wrong_rate": 0.1},
-                      "time_ratio": 4.0, "false_positive_ratio": 3.0, "false_positive_ratio_is_lower_bound": True},
-        "icp_vs_open3d": {"pairs": 0}, "fusion": {"queries": 0},
-        "cost_curve": {"points": [point, {**point, "factor": 2.0, "panorama_width_px": 4096, "median_ms": 51.0}],
-                       "exponent": 1.0, "steps_exponent": {"icp": 1.0}},
+        "hierarchy": {
+            "seeded": {
+                "median_ms": 10.0,
+                "false_positive_count": 0,
+                "steps_false_positive_count": {},
+                "steps_reliable_rate": {},
+                "confidently_wrong_rate": 0.0,
+            },
+            "blind": {
+                "median_ms": 40.0,
+                "false_positive_count": 3,
+                "steps_false_positive_count": {},
+                "steps_reliable_rate": {},
+                "confidently_wrong_rate": 0.1,
+            },
+            "time_ratio": 4.0,
+            "false_positive_ratio": 3.0,
+            "false_positive_ratio_is_lower_bound": True,
+        },
+        "icp_vs_open3d": {"pairs": 0},
+        "fusion": {"queries": 0},
+        "cost_curve": {
+            "points": [point, {**point, "factor": 2.0, "panorama_width_px": 4096, "median_ms": 51.0}],
+            "exponent": 1.0,
+            "steps_exponent": {"icp": 1.0},
+        },
     }
     console = Console(width=100, record=True)
     for t in bench_tables(out):

@@ -74,7 +74,9 @@ def test_panorama_rejects_bad_geometry(kwargs: dict, match: str) -> None:
         Panorama(IMG, **kwargs)
 
 
-@pytest.mark.parametrize("kwargs,match", [({"hfov_rad": -1.0}, "hfov_rad"), ({"yaw_in_robot_rad": float("inf")}, "yaw_in_robot_rad")])
+@pytest.mark.parametrize(
+    "kwargs,match", [({"hfov_rad": -1.0}, "hfov_rad"), ({"yaw_in_robot_rad": float("inf")}, "yaw_in_robot_rad")]
+)
 def test_camera_rejects_bad_geometry(kwargs: dict, match: str) -> None:
     with pytest.raises(InputError, match=match):
         CameraImage(IMG, **kwargs)
@@ -200,7 +202,11 @@ def test_certainty_of_an_elongated_gaussian_and_of_undetermined_components() -> 
     sx, sy, r = 0.01, 1.0, 0.05
     ref, _ = dblquad(
         lambda y, x: math.exp(-0.5 * (x / sx) ** 2 - 0.5 * (y / sy) ** 2) / (2 * math.pi * sx * sy),
-        -r, r, lambda x: -math.sqrt(r * r - x * x), lambda x: math.sqrt(r * r - x * x), epsabs=1e-13,
+        -r,
+        r,
+        lambda x: -math.sqrt(r * r - x * x),
+        lambda x: math.sqrt(r * r - x * x),
+        epsabs=1e-13,
     )
     loc = _loc(np.diag([sx**2, sy**2, 1e-6]))
     assert math.isclose(loc.certainty(r, 1.0), ref, rel_tol=1e-7)

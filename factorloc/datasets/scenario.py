@@ -247,7 +247,8 @@ class Scenario:
         for r in self.references:
             if r.id == reference_id:
                 return r
-        raise UnknownIdError(f"no reference {reference_id!r} in scenario {self.name!r}; ids are {[r.id for r in self.references]}")
+        ids = [r.id for r in self.references]
+        raise UnknownIdError(f"no reference {reference_id!r} in scenario {self.name!r}; ids are {ids}")
 
     def reference_of(self, query: ScenarioQuery) -> Reference:
         """The reference ``query`` is localized against."""

@@ -190,7 +190,8 @@ class RobustGraphFusion:
         """No memory across queries."""
 
     def update(self, query: Query, reports: Sequence[StepReport]) -> Fused:
-        """Fuse every estimate of ``reports`` its estimator judged reliable (all with ``trust_verdicts=False``); no consistency gate."""
+        """Fuse the estimates of ``reports`` their estimators judged reliable (all of them with
+        ``trust_verdicts=False``); no consistency gate."""
         ests = reliable_estimates(reports) if self.trust_verdicts else [r.estimate for r in reports if r.estimate is not None]
         if not ests:
             seed = query.odometry.T_world_robot if query.odometry is not None else Pose2()

@@ -18,9 +18,14 @@ def _example(repo_root: Path) -> str:
     return match.group(1)
 
 
-def test_the_rosbag_conversion_example_writes_a_scenario_that_localizes(repo_root: Path, shared_data: Path, tmp_path: Path) -> None:
+def test_the_rosbag_conversion_example_writes_a_scenario_that_localizes(
+    repo_root: Path, shared_data: Path, tmp_path: Path
+) -> None:
     out = tmp_path / "my-robot"
-    exec(compile(_example(repo_root), "own-data.md", "exec"), {"BAG_PATH": shared_data / "laser" / "intel.sort.bag", "OUT_DIR": out})
+    exec(
+        compile(_example(repo_root), "own-data.md", "exec"),
+        {"BAG_PATH": shared_data / "laser" / "intel.sort.bag", "OUT_DIR": out},
+    )
     scenario = load_scenario(out)
     assert len(scenario.queries) == 9
     localizer = fl.Localizer(scenario.reference)
@@ -29,6 +34,6 @@ def test_the_rosbag_conversion_example_writes_a_scenario_that_localizes(repo_roo
     # odometry's own uncertainty of the dead-reckoned pose (0.3–2.6 m driven, 5 % drift)
     assert all(loc.determined for loc in locs)
     assert sum(loc.step("icp").fused for loc in locs) >= 8
-    for loc, q in zip(locs, scenario.queries):
+    for loc, q in zip(locs, scenario.queries, strict=True):
         odo = q.query.odometry
         assert np.hypot(*(loc.pose.translation - odo.T_world_robot.translation)) < 3 * odo.sigma_x_m + 0.02

@@ -38,7 +38,9 @@ def test_prior_factor_pose2_differs_from_the_per_axis_product_by_a_fraction_of_a
     graph = gtsam.NonlinearFactorGraph()
     graph.add(
         gtsam.PriorFactorPose2(
-            0, gtsam.Pose2(1.0, 0.5, math.radians(10.0)), gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, math.radians(3.0)]))
+            0,
+            gtsam.Pose2(1.0, 0.5, math.radians(10.0)),
+            gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, math.radians(3.0)])),
         )
     )
     for f in factors_for(icp) + factors_for(compass):
