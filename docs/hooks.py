@@ -1,8 +1,9 @@
 """MkDocs build hooks: the tutorials and the home-page figure come from the library itself.
 
 - Every notebook of ``notebooks/`` is executed top to bottom (nbclient) into
-  ``docs/tutorials/`` (git-ignored) when that copy is missing or older than its
-  source; a failing cell fails the build. This is where the notebooks run in
+  ``docs/tutorials/`` (git-ignored) unless a copy executed from the same inputs
+  (the notebook, the library's sources, the shipped data) is there; a failing
+  cell fails the build. This is where the notebooks run in
   CI: ``make test`` builds the site.
 - ``docs/assets/generated/home_localization.png`` (git-ignored) is drawn by
   localizing one query of the shipped sample scenario.
@@ -10,6 +11,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import time
@@ -29,8 +31,17 @@ def on_pre_build(config: Any, **kwargs: Any) -> None:
     home_figure()
 
 
+def _inputs_digest(source: Path) -> str:
+    """A hash of everything a notebook's outputs depend on: itself, the library and the shipped data."""
+    h = hashlib.sha256(source.read_bytes())
+    for path in sorted([*(REPO / "factorloc").rglob("*.py"), *(REPO / "data").rglob("*.yaml")]):
+        h.update(str(path.relative_to(REPO)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()
+
+
 def execute_notebooks() -> None:
-    """Execute each notebook into docs/tutorials/ unless its executed copy is up to date."""
+    """Execute each notebook into docs/tutorials/ unless an executed copy of the same inputs exists."""
     import nbformat
     from nbclient import NotebookClient
 
@@ -38,11 +49,15 @@ def execute_notebooks() -> None:
     force = os.environ.get("FACTORLOC_DOCS_REEXECUTE") == "1"
     for source in sorted(NOTEBOOKS.glob("*.ipynb")):
         target = TUTORIALS / source.name
-        if not force and target.exists() and target.stat().st_mtime >= source.stat().st_mtime:
-            continue
+        digest = _inputs_digest(source)
+        if not force and target.exists():
+            done = nbformat.read(target, as_version=4).metadata.get("factorloc_inputs_sha256")
+            if done == digest:
+                continue
         t0 = time.perf_counter()
         nb = nbformat.read(source, as_version=4)
         NotebookClient(nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(NOTEBOOKS)}}).execute()
+        nb.metadata["factorloc_inputs_sha256"] = digest
         nbformat.write(nb, target)
         log.info("executed %s in %.1f s", source.name, time.perf_counter() - t0)
 

@@ -57,7 +57,10 @@ from factorloc.types import Component, Query, StepReport
 log = logging.getLogger(__name__)
 
 #: σ of the placeholder prior that anchors a component nothing has measured yet (m and rad).
-PLACEHOLDER_SIGMA = 1e3
+#: Far beyond any indoor uncertainty, yet small enough for GTSAM's Cholesky: with 1e3 m, a
+#: chain that starts with a heading only and is then linked by cm-level odometry is declared
+#: an indeterminate system (condition ~1e9); measured, 100 m still works, 300 m fails.
+PLACEHOLDER_SIGMA = 30.0
 
 
 def _diag_noise(sigmas: np.ndarray) -> gtsam.noiseModel.Base:

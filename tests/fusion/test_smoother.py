@@ -107,3 +107,31 @@ def test_independent_queries_are_not_linked() -> None:
 def test_bad_lag_is_refused() -> None:
     with pytest.raises(InputError, match="lag"):
         FixedLagSmoother(lag=0)
+
+
+def test_a_chain_started_from_a_heading_only_survives_cm_level_odometry_links() -> None:
+    # Regression (notebook 04 in CI): a new chain whose first pose has only a heading gets a
+    # placeholder prior on its position; with σ = 1e3 m GTSAM's Cholesky then declared the
+    # system indeterminate as soon as a 2.7 cm odometry link arrived.
+    import gtsam
+
+    from factorloc.fusion.smoother import PLACEHOLDER_SIGMA
+
+    isam = gtsam.ISAM2()
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    graph.add(gtsam.PoseRotationPrior2D(0, gtsam.Rot2(1.0), gtsam.noiseModel.Diagonal.Sigmas(np.array([0.06]))))
+    graph.add(
+        gtsam.PoseTranslationPrior2D(0, np.array([0.2, 0.5]), gtsam.noiseModel.Diagonal.Sigmas(np.full(2, PLACEHOLDER_SIGMA)))
+    )
+    values.insert(0, gtsam.Pose2(0.2, 0.5, 1.0))
+    isam.update(graph, values)
+    for k in range(1, 4):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        odo = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.027, 0.027, 0.011]))
+        graph.add(gtsam.BetweenFactorPose2(k - 1, k, gtsam.Pose2(0.3, 0.0, 0.1), odo))
+        if k == 3:  # then ICP fixes the position to the millimetre
+            graph.add(gtsam.PoseTranslationPrior2D(k, np.array([0.9, 0.7]), gtsam.noiseModel.Diagonal.Sigmas(np.array([0.001, 0.003]))))
+        values.insert(k, gtsam.Pose2(0.2 + 0.3 * k, 0.5, 1.0 + 0.1 * k))
+        isam.update(graph, values)
+        cov = np.asarray(isam.marginalCovariance(k))
+    assert cov[0, 0] < 1e-5 and cov[1, 1] < 1e-4  # determined by the ICP prior, not the placeholder
