@@ -30,6 +30,19 @@ bearing from the hypothesised position (:mod:`factorloc.vision.depth`)
 before voting; without a position hypothesis the query is assumed within
 ``unknown_position_sigma_m`` of the reference. The world-frame heading is
 ``T_world_reference.theta + θ``.
+
+Distinctiveness (repeated textures, wrong seeds): tiled wall textures give
+look-alike keypoints a period apart, and the ratio test may keep a wrong copy
+for a whole texture, so a tight cluster can be wrong. Hence (i) a significant
+competing vote mode adds the spread of the two-mode mixture to σθ2
+(``rival_sigma_weight``); (ii) when seeded, the best matches just beyond the
+window (the distinctiveness margin) may not form a stronger mode than the
+window's (a wrong seed, e.g. a kidnapped robot, would otherwise be
+"confirmed" by a look-alike inside its window); (iii) with a position
+hypothesis the pairs are re-voted from positions within ±2σ of it, and a
+better-supported mode more than 3σθ2 away makes θ2 unreliable; (iv) after a
+resection the inliers are chosen again with votes corrected from the
+resected position (a biased inlier set from a wrong position misleads it).
 """
 
 from __future__ import annotations
@@ -81,6 +94,15 @@ class CompassConfig:
         Fewest inliers per match for a reliable θ2.
     max_ambiguity
         Unreliable when a separate vote mode has ≥ this fraction of the best one's support.
+    max_outside_ambiguity
+        Seeded search: unreliable when the best matches just beyond the window (within
+        ``distinct_margin_rad``) form a mode with ≥ this fraction of the window's mode's support.
+    rival_sigma_weight
+        The competing vote mode (support ``r`` less the background expected from the unmatched
+        pairs in one band, λ, and the rival vote itself, offset Δ from the mode, ``n`` inliers) adds
+        ``w·√(p(1−p))·|Δ|`` with ``p = r/(n + r)`` to σθ2 (the spread of a two-mode mixture, scaled by ``w``),
+        when the rival is significant (≥ 3 votes and ≥ λ + 3√λ + 1). ``w = 0.7`` was chosen on a
+        simulated apartment (``factorloc simulate --world apartment --queries 300 --seed 7``).
     max_sigma_rad
         Unreliable above this σθ2.
     sigma_floor_rad, max_effective_inliers
@@ -107,6 +129,10 @@ class CompassConfig:
         inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
         heading's marginal σ (features at several depths and directions separate a turn from a
         sideways shift); ``depth_relative_sigma`` is the relative error of the reference ranges.
+    position_shift_support
+        With a position hypothesis the pairs are also voted from a 5×5 grid of positions within ±2σ of
+        it; unreliable when one of them gives a mode with ≥ this many times the inliers, more than 3σθ2
+        away (the heading then depends on where, within its uncertainty, the robot is).
     record_pairs
         Put every matched pair ``[az_ref, el_ref, az_query]`` (rad; reference and query robot
         frames, before parallax correction) in ``diagnostics["pairs_rad"]`` (for evaluation).
@@ -124,6 +150,8 @@ class CompassConfig:
     min_inliers: int = 8
     min_inlier_ratio: float = 0.1
     max_ambiguity: float = 0.5
+    max_outside_ambiguity: float = 1.0
+    rival_sigma_weight: float = 0.7
     max_sigma_rad: float = math.radians(5.0)
     sigma_floor_rad: float = math.radians(0.1)
     max_effective_inliers: int = 30
@@ -135,6 +163,7 @@ class CompassConfig:
     distinct_margin_rad: float = math.radians(30.0)
     seed_consistency_n_sigma: float = 3.0
     record_pairs: bool = False
+    position_shift_support: float = 1.1
     resection: bool = True
     depth_relative_sigma: float = 0.1
 
@@ -328,8 +357,11 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         allowed = votes_all <= reach
     candidates = int(len(az_r))
     qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
+    outside_votes = np.zeros(0)
     if window is not None:
         inside = votes_all[qi, ri] <= window + config.inlier_band_rad
+        # best matches beyond the window (within the distinctiveness margin): evidence against the seed
+        outside_votes = np.asarray(wrap_angle(az_r[ri[~inside]] - az_q[qi[~inside]]), dtype=np.float64)
         qi, ri = qi[inside], ri[inside]
     diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
     if len(qi) < 2:
@@ -343,6 +375,12 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     resid = np.asarray(wrap_angle(votes[inliers] - theta))
     spread = float(np.sqrt(np.mean(resid**2))) if n_in else math.pi
     n_eff = min(n_in, config.max_effective_inliers)
+    mode = theta  # the vote mode, before any resection
+    shifted = None
+    if position is not None and n_in:
+        shifted = _position_sensitivity(prepared, az_q[qi], ref_index[ri], position, n_in, config)
+    rival, rival_offset = kp.competing_mode(votes, mode, config.inlier_band_rad)
+    outside, outside_offset = kp.competing_mode(np.concatenate([votes, outside_votes]), mode, config.inlier_band_rad)
     if position is not None and n_in:
         displacement = float(np.hypot(*(np.asarray(position[0]) - prepared.depth.T_world_reference.translation)))
         sigma_par = math.hypot(parallax_sigma(position[1], ranges[ri[inliers]]), config.depth_sigma_rad_per_m * displacement)
@@ -374,18 +412,61 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
             config,
         )
         if resected is not None:
+            # the inliers were chosen with votes corrected from the *hypothesised* position: when that is off,
+            # true pairs fall out of the band and the rest is a biased subset. Choose them again with votes
+            # corrected from the resected position, and resect once more (same prior).
+            k_all = ref_index[ri]
+            world_vote, _ = prepared.depth.world_headings(
+                prepared.azimuth_rad[k_all], az_q[qi], resected[2], prepared.elevation_rad[k_all]
+            )
+            again = np.abs(wrap_angle(world_vote - resected[0])) <= config.inlier_band_rad
+            if int(again.sum()) >= config.min_inliers and np.any(again != inliers):
+                k = ref_index[ri[again]]
+                second = resect(
+                    prepared.depth,
+                    prepared.azimuth_rad[k],
+                    prepared.elevation_rad[k],
+                    az_q[qi[again]],
+                    Pose2(position[0][0], position[0][1], resected[0]),
+                    position[1],
+                    prepared.grid.rad_per_px,
+                    config,
+                )
+                if second is not None:
+                    resected, inliers = second, again
+                    n_in = int(inliers.sum())
+                    n_eff = min(n_in, config.max_effective_inliers)
+                    sigma_cluster = config.inlier_band_rad / math.sqrt(max(n_eff, 1))
             theta = float(wrap_angle(resected[0] - prepared.theta_reference_rad))
             # the cluster term stays: a few bearings on depth edges of the coarse depth map mislead
             sigma = math.sqrt(resected[1] ** 2 + sigma_cluster**2 + config.sigma_floor_rad**2)
             sigma = max(sigma, prepared.grid.rad_per_px)
             diag["resection_position_m"] = [resected[2][0], resected[2][1]]
     ambiguity = runner_up / n_in if n_in else 1.0
+    # a competing mode that is not distinctive enough to be ignored: θ2 is a two-mode mixture, and its σ must cover
+    # the separation (repeated textures put look-alike modes a period away; a tight cluster is no proof)
+    span = 2.0 * math.pi if window is None else 2.0 * (window + config.inlier_band_rad)
+    # the rival counts itself; a stray vote or two among the unmatched pairs (λ expected per band) is no mode
+    background = (len(qi) - n_in) * min(1.0, 2.0 * config.inlier_band_rad / span)
+    significant = rival >= max(3.0, background + 3.0 * math.sqrt(background) + 1.0)
+    excess = max(rival - background - 1.0, 0.0) if significant else 0.0
+    p_rival = excess / (n_in + excess) if n_in else 1.0
+    sigma_rival = config.rival_sigma_weight * math.sqrt(p_rival * (1.0 - p_rival)) * abs(rival_offset)
+    sigma = math.hypot(sigma, sigma_rival)
     diag.update(
         inliers=n_in,
         inlier_ratio=n_in / len(qi),
         spread_rad=spread,
         sigma_parallax_rad=sigma_par,
         ambiguity=ambiguity,
+        rival_support=rival,
+        rival_offset_rad=rival_offset,
+        sigma_rival_rad=sigma_rival,
+        outside_matches=int(len(outside_votes)),
+        extended_rival_support=outside,
+        extended_rival_offset_rad=outside_offset,
+        position_shift_mode=None if shifted is None else list(shifted),
+        mode_seed_gap_rad=None if window is None else abs(float(wrap_angle(mode - seed[0]))),
         theta_relative_rad=theta,
     )
     problems = []
@@ -395,6 +476,18 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         problems.append(f"inlier ratio {n_in / len(qi):.2f} < {config.min_inlier_ratio:.2f}")
     if ambiguity >= config.max_ambiguity:
         problems.append(f"ambiguous: a second vote mode has {runner_up} pairs vs {n_in}")
+    if outside >= config.max_outside_ambiguity * max(n_in, 1) and abs(outside_offset) > 3.0 * config.inlier_band_rad:
+        # the best matches just beyond the seeded window agree on another heading more than those inside do:
+        # the seed is wrong (kidnapping) or the window holds a look-alike of a repeated texture
+        problems.append(
+            f"a stronger vote mode ({outside} pairs vs {n_in}) {math.degrees(outside_offset):+.1f}° away, beyond the seeded window"
+        )
+    if shifted is not None and shifted[1] >= config.position_shift_support * n_in:
+        shift_gap = abs(float(wrap_angle(shifted[0] - theta)))
+        if shift_gap > 3.0 * sigma:
+            problems.append(
+                f"from a position {shifted[2]:.2f} m off the hypothesis {shifted[1]} pairs vote {math.degrees(shift_gap):.1f}° away"
+            )
     h = hypotheses.heading()
     if h is not None:
         gap = abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0])))
@@ -407,6 +500,40 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     return Estimate.heading(
         STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag
     )
+
+
+def _position_sensitivity(
+    prepared: PreparedCompass,
+    az_query_rad: np.ndarray,
+    ref_index: np.ndarray,
+    position: tuple[tuple[float, float], float],
+    n_inliers: int,
+    config: CompassConfig,
+) -> tuple[float, int, float] | None:
+    """The strongest vote mode over positions within ±2σ of the position hypothesis, when it beats the seed's.
+
+    The matched pairs are re-voted with parallax corrected from each point of a
+    5×5 grid (steps of σ_p) around the hypothesised position. Returns
+    ``(theta_relative_rad, support, shift_m)`` of the grid point whose mode has more
+    support than ``n_inliers`` (the mode at the hypothesis), or None.
+    """
+    (x0, y0), sigma_p = position
+    az_ref = prepared.azimuth_rad[ref_index]
+    el_ref = prepared.elevation_rad[ref_index]
+    pts = prepared.depth.world_points(az_ref, el_ref)
+    steps = sigma_p * np.arange(-2.0, 2.5, 1.0)
+    best = None
+    for dx in steps:  # 25 grid points, each vectorized over the pairs
+        for dy in steps:
+            if dx == 0.0 and dy == 0.0:
+                continue
+            bearing = np.arctan2(pts[:, 1] - (y0 + dy), pts[:, 0] - (x0 + dx))
+            votes = np.asarray(wrap_angle(bearing - prepared.theta_reference_rad - az_query_rad))
+            theta, inl, _ = kp.vote_consensus(votes, config.inlier_band_rad)
+            n = int(inl.sum())
+            if n > n_inliers and (best is None or n > best[1]):
+                best = (theta, n, float(math.hypot(dx, dy)))
+    return best
 
 
 def resect(

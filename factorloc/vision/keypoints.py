@@ -150,3 +150,27 @@ def nearest_circular_distance(angles_rad: np.ndarray, targets_rad: np.ndarray) -
     lo = np.abs(aw - ext[np.clip(k - 1, 0, ext.size - 1)])
     hi = np.abs(ext[np.clip(k, 0, ext.size - 1)] - aw)
     return np.minimum(lo, hi)
+
+
+
+def competing_mode(votes_rad: np.ndarray, theta_rad: float, band_rad: float) -> tuple[int, float]:
+    """The strongest vote mode further than ``3·band_rad`` from ``theta_rad``: its support and offset.
+
+    Each vote further than three bands from the mode counts the votes within
+    ``±band_rad`` of it (circularly); the one with most neighbours is the competing
+    mode (as the ``runner_up`` of :func:`vote_consensus`).
+
+    Returns
+    -------
+    (support, offset_rad)
+        The number of votes of the competing mode and its offset
+        ``wrap(θ_competitor − theta_rad)`` (rad); (0, 0.0) when every vote is near the mode.
+    """
+    v = np.asarray(votes_rad, dtype=np.float64)
+    off = np.asarray(wrap_angle(v - theta_rad))
+    far = np.abs(off) > 3.0 * band_rad
+    if not far.any():
+        return 0, 0.0
+    support = (np.abs(wrap_angle(v[far][:, None] - v[None, :])) <= band_rad).sum(axis=1)
+    k = int(np.argmax(support))
+    return int(support[k]), float(off[far][k])
