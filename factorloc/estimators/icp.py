@@ -97,7 +97,15 @@ class IcpConfig:
         nothing reliable, search again over the full ``global_search.radius_m``
         around the position seed and the full circle of headings: the seeds
         of a kidnapped robot are confidently wrong (odometry σ of centimetres,
-        off by metres and tens of degrees).
+        off by metres and tens of degrees). The solutions found before
+        widening count as rivals in the ambiguity test of the widened one
+        (measured: on one Intel local relation the seeded ICP was right but
+        failed the free-space test, and the widened search found the
+        corridor's 180° twin scoring no better).
+    widened_ambiguity_ratio
+        The ambiguity ratio of a widened search: a search over a far larger
+        window finds a spurious best more easily, so the best must dominate
+        more clearly (the twin above scored 0.50 against 0.44).
     global_search
         Its grid (the translation window is ``radius_m`` around the seed
         position, or around the reference origin without a position seed).
@@ -182,6 +190,7 @@ class IcpConfig:
     kernel_scale_m: float = 0.05
     global_init: bool = True
     global_widen: bool = True
+    widened_ambiguity_ratio: float = 0.8
     global_search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
     global_refine: int = 10
     ambiguity_ratio: float = 0.9
@@ -228,6 +237,8 @@ class IcpConfig:
             raise ConfigError(f"icp.seed_consistency_probability must be in (0, 1), got {self.seed_consistency_probability!r}")
         if not 0.0 <= self.min_constraint <= 0.5:
             raise ConfigError(f"icp.min_constraint must be in [0, 0.5], got {self.min_constraint!r}")
+        if not 0.0 < self.widened_ambiguity_ratio <= 1.0:
+            raise ConfigError(f"icp.widened_ambiguity_ratio must be in (0, 1], got {self.widened_ambiguity_ratio!r}")
         if not 0.0 < self.ambiguity_ratio <= 1.0:
             raise ConfigError(f"icp.ambiguity_ratio must be in (0, 1], got {self.ambiguity_ratio!r}")
         if not 0.0 <= self.min_fitness <= 1.0:
@@ -545,14 +556,24 @@ def estimate(
             windows.append((full_radius, 0.0, math.pi))
         if profile is None:
             profile = polar_profile(pts, gap_free_m=config.gap_free_m)
+        # solutions found before widening (the seeded ICP's, the seed-bounded search's): rivals of a widened one
+        earlier: list[tuple[float, Pose2]] = []
+        if result is not None and len(windows) > 1:
+            if math.isnan(violation):
+                violation = _violation(prepared, pts, profile, result.T_target_source)
+            earlier.append((result.fitness - config.violation_weight * violation, result.T_target_source))
         for w_radius, w_heading, w_half in windows:
             g, g_v, g_score, g_rival, g_n = _global(prepared, pts, profile, config, center, w_heading, w_half, w_radius)
             if g is None:
                 continue
+            # a distinct earlier solution scoring nearly as well makes a widened solution ambiguous too
+            g_rival = max([g_rival] + [sc for sc, T in earlier if _distinct(T, g.T_target_source, config)])
+            earlier.append((g_score, g.T_target_source))
             g_cov = _covariance(g, config)
             g_strength = constraint_strength(g)
             g_verdict = _judge(g, g_cov, config, g_v, g_strength)
-            if g_verdict.reliable and g_rival >= config.ambiguity_ratio * g_score:
+            ratio = config.ambiguity_ratio if w_radius == radius and w_half == half else config.widened_ambiguity_ratio
+            if g_verdict.reliable and g_rival >= ratio * g_score:
                 g_verdict = _Verdict(False, f"ambiguous: a distinct solution scores {g_rival:.2f} vs {g_score:.2f}")
             if result is None or g_verdict.reliable or g.fitness > result.fitness:
                 result, cov, verdict, used_global, violation, strength = g, g_cov, g_verdict, True, g_v, g_strength
