@@ -480,13 +480,15 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         # the best matches just beyond the seeded window agree on another heading more than those inside do:
         # the seed is wrong (kidnapping) or the window holds a look-alike of a repeated texture
         problems.append(
-            f"a stronger vote mode ({outside} pairs vs {n_in}) {math.degrees(outside_offset):+.1f}° away, beyond the seeded window"
+            f"a stronger vote mode ({outside} pairs vs {n_in}) {math.degrees(outside_offset):+.1f}° away, "
+            "beyond the seeded window"
         )
     if shifted is not None and shifted[1] >= config.position_shift_support * n_in:
         shift_gap = abs(float(wrap_angle(shifted[0] - theta)))
         if shift_gap > 3.0 * sigma:
             problems.append(
-                f"from a position {shifted[2]:.2f} m off the hypothesis {shifted[1]} pairs vote {math.degrees(shift_gap):.1f}° away"
+                f"from a position {shifted[2]:.2f} m off the hypothesis {shifted[1]} pairs vote "
+                f"{math.degrees(shift_gap):.1f}° away"
             )
     h = hypotheses.heading()
     if h is not None:
