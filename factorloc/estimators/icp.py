@@ -102,15 +102,27 @@ class IcpConfig:
         (measured: on one Intel local relation the seeded ICP was right but
         failed the free-space test, and the widened search found the
         corridor's 180° twin scoring no better).
-    widened_ambiguity_ratio
-        The ambiguity ratio of a widened search: a search over a far larger
-        window finds a spurious best more easily, so the best must dominate
-        more clearly (the twin above scored 0.50 against 0.44).
+    seed_contradiction_ambiguity_ratio
+        The ambiguity ratio of a global solution outside the region of a
+        reliable position seed (χ² at ``seed_consistency_probability``): it
+        overturns the seed, so the best must dominate every distinct rival,
+        the seeded ICP's result included, more clearly. Measured on the
+        simulated apartment: the kidnapped robots' true solutions had rivals
+        at ≤ 0.58 of their score; a wrong solution 1.2 m from a good 5 cm seed
+        had one at 0.79, and the corridor twin above one at 0.88.
     global_search
         Its grid (the translation window is ``radius_m`` around the seed
         position, or around the reference origin without a position seed).
     global_refine
         How many global candidates are refined by ICP.
+    global_max_shift_m
+        A candidate whose ICP refinement moves it farther than this is
+        dropped: the search's fine level places a candidate within a few
+        centimetres, so a long move means ICP converged elsewhere (measured:
+        a simulated query whose seeded ICP failed got a reliable global
+        solution 1.2 m from the truth and from its 5 cm seed, which the seed
+        check used to catch; the seed check no longer applies to global
+        solutions, see ``seed_consistency_probability``).
     ambiguity_ratio
         A distinct second ICP solution whose fitness reaches this fraction of
         the best makes a global result ambiguous (unreliable).
@@ -190,9 +202,10 @@ class IcpConfig:
     kernel_scale_m: float = 0.05
     global_init: bool = True
     global_widen: bool = True
-    widened_ambiguity_ratio: float = 0.8
+    seed_contradiction_ambiguity_ratio: float = 0.7
     global_search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
     global_refine: int = 10
+    global_max_shift_m: float = 0.5
     ambiguity_ratio: float = 0.9
     distinct_m: float = 0.3
     distinct_rad: float = math.radians(5.0)
@@ -237,8 +250,10 @@ class IcpConfig:
             raise ConfigError(f"icp.seed_consistency_probability must be in (0, 1), got {self.seed_consistency_probability!r}")
         if not 0.0 <= self.min_constraint <= 0.5:
             raise ConfigError(f"icp.min_constraint must be in [0, 0.5], got {self.min_constraint!r}")
-        if not 0.0 < self.widened_ambiguity_ratio <= 1.0:
-            raise ConfigError(f"icp.widened_ambiguity_ratio must be in (0, 1], got {self.widened_ambiguity_ratio!r}")
+        if not 0.0 < self.seed_contradiction_ambiguity_ratio <= 1.0:
+            raise ConfigError(
+                f"icp.seed_contradiction_ambiguity_ratio must be in (0, 1], got {self.seed_contradiction_ambiguity_ratio!r}"
+            )
         if not 0.0 < self.ambiguity_ratio <= 1.0:
             raise ConfigError(f"icp.ambiguity_ratio must be in (0, 1], got {self.ambiguity_ratio!r}")
         if not 0.0 <= self.min_fitness <= 1.0:
@@ -452,6 +467,11 @@ def _global(
     scored = []
     for c in cands[: config.global_refine]:
         r = align(prepared.target, points, c.T_reference_query, config.global_icp, kernel)
+        shift = c.T_reference_query.between(r.T_target_source)
+        if math.hypot(shift.x, shift.y) > config.global_max_shift_m:
+            # the refinement left the candidate's basin (slid along a wall, or onto another place): not a
+            # solution of this candidate — the global counterpart of a seeded ICP jumping away from its seed
+            continue
         v = _violation(prepared, points, profile, r.T_target_source)
         scored.append((r.fitness - config.violation_weight * v, v, r))
     if not scored:
@@ -556,9 +576,10 @@ def estimate(
             windows.append((full_radius, 0.0, math.pi))
         if profile is None:
             profile = polar_profile(pts, gap_free_m=config.gap_free_m)
-        # solutions found before widening (the seeded ICP's, the seed-bounded search's): rivals of a widened one
+        # solutions found before (the seeded ICP's, the seed-bounded search's) are rivals of a global one: a global
+        # solution that disagrees with the seed must explain the scan clearly better than the seed does
         earlier: list[tuple[float, Pose2]] = []
-        if result is not None and len(windows) > 1:
+        if result is not None:
             if math.isnan(violation):
                 violation = _violation(prepared, pts, profile, result.T_target_source)
             earlier.append((result.fitness - config.violation_weight * violation, result.T_target_source))
@@ -566,13 +587,19 @@ def estimate(
             g, g_v, g_score, g_rival, g_n = _global(prepared, pts, profile, config, center, w_heading, w_half, w_radius)
             if g is None:
                 continue
-            # a distinct earlier solution scoring nearly as well makes a widened solution ambiguous too
+            # a distinct earlier solution scoring nearly as well makes a global solution ambiguous too
             g_rival = max([g_rival] + [sc for sc, T in earlier if _distinct(T, g.T_target_source, config)])
             earlier.append((g_score, g.T_target_source))
             g_cov = _covariance(g, config)
             g_strength = constraint_strength(g)
             g_verdict = _judge(g, g_cov, config, g_v, g_strength)
-            ratio = config.ambiguity_ratio if w_radius == radius and w_half == half else config.widened_ambiguity_ratio
+            ratio = config.ambiguity_ratio
+            if pos is not None:
+                # a solution outside the region of a reliable position seed overturns it: only unambiguous evidence may
+                e_g = (T_wr * g.T_target_source).translation - np.array([pos[0], pos[1]])
+                s_g = rotate_covariance(g_cov, T_wr.theta)[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2])
+                if float(e_g @ np.linalg.solve(s_g, e_g)) > _chi2_2dof(config.seed_consistency_probability):
+                    ratio = min(ratio, config.seed_contradiction_ambiguity_ratio)
             if g_verdict.reliable and g_rival >= ratio * g_score:
                 g_verdict = _Verdict(False, f"ambiguous: a distinct solution scores {g_rival:.2f} vs {g_score:.2f}")
             if result is None or g_verdict.reliable or g.fitness > result.fitness:
