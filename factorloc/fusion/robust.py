@@ -98,8 +98,7 @@ class RobustGraphFusion:
     trust_verdicts
         True (default): :meth:`update` fuses the estimates their estimator judged reliable.
         False: every estimate the steps produced enters, the unreliable ones too (the kernel alone
-        decides): e.g. an ICP global solution its step refused because it disagrees with a kidnapped
-        odometry.
+        decides): e.g. a visual heading whose peak fell just short of its threshold.
     """
 
     def __init__(self, kernel: str = "cauchy", k: float | None = None, *, trust_verdicts: bool = True) -> None:
