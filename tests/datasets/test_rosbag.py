@@ -21,11 +21,8 @@ from factorloc.geometry import Pose2
 
 
 @pytest.fixture(scope="module")
-def laser_dir() -> Path:
-    d = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "laser"
-    if not (d / "intel.sort.bag").is_file():
-        pytest.skip(f"laser logs not available at {d}")
-    return d
+def laser_dir(shared_data: Path) -> Path:
+    return shared_data / "laser"
 
 
 def test_intel_bag_reads_every_scan_and_odometry_message(laser_dir: Path) -> None:

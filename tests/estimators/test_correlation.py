@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from helpers_visual import at
+from helpers_visual import heading_error as _err
 
 from factorloc import CameraImage, Estimate, Pose2, Query, Reference
 from factorloc.errors import ConfigError, InputError
@@ -13,28 +15,11 @@ from factorloc.estimators import correlation as co
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.sim import photo
 
-PHOTOS = {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}
 
-
-def at(reference: Reference, sigma_m: float = 0.01) -> Hypotheses:
-    """A position hypothesis: the robot stands where the reference was taken (± ``sigma_m``)."""
-    p = reference.T_world_reference
-    return Hypotheses((Estimate.position("odometry", p.x, p.y, sigma_m, sigma_m),))
-
-
-def _err(est: Estimate, truth: float) -> float:
-    return abs(math.remainder(est.value("theta") - truth, 2 * math.pi))
-
-
-@pytest.fixture(scope="module", params=sorted(PHOTOS))
-def real(request, shared_data):
-    path = shared_data / "panoramas" / request.param
-    if not path.is_file():
-        pytest.skip(f"{path} absent")
-    eq = photo.load_equirectangular(path)
-    w, h = PHOTOS[request.param]
-    ref = Reference(panorama=photo.reference_panorama(eq, w, h))
-    return request.param, eq, ref, co.prepare(ref)
+@pytest.fixture(scope="module")
+def real(real_photo):
+    name, eq, ref = real_photo
+    return name, eq, ref, co.prepare(ref)
 
 
 @pytest.fixture(scope="module")

@@ -21,11 +21,8 @@ from factorloc.evaluation.relations import (
 
 
 @pytest.fixture(scope="module")
-def laser_dir() -> Path:
-    d = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "laser"
-    if not (d / "intel.sort.bag").is_file():
-        pytest.skip(f"laser logs not available at {d}")
-    return d
+def laser_dir(shared_data: Path) -> Path:
+    return shared_data / "laser"
 
 
 def _rows(laser_dir: Path, name: str, every_local: int, every_loop: int) -> list[dict]:
