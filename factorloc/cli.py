@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -72,11 +73,23 @@ _STATUS_STYLE = {
 }
 
 
+def _table(title: str, columns: Sequence[str], caption: str | None = None, *, left: Sequence[str] = ("",)) -> Table:
+    """A left-titled rich table; ``columns`` listed in ``left`` are left-justified, the others right-justified.
+
+    With a ``caption`` the compact report style is used (simple header rule, no outer padding).
+    """
+    style: dict[str, Any] = {}
+    if caption is not None:
+        style = dict(header_style="bold", box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, caption_justify="left")
+    table = Table(title=title, title_justify="left", caption=caption, **style)
+    for col in columns:
+        table.add_column(col, justify="left" if col in left else "right", no_wrap=caption is not None)
+    return table
+
+
 def steps_table(loc: factorloc.Localization, title: str = "Steps") -> Table:
     """A rich table: one row per step (estimate, σ, status, reason, ms)."""
-    table = Table(title=title, title_justify="left")
-    for col in ("step", "estimate", "σ", "status", "reason", "ms"):
-        table.add_column(col, justify="right" if col == "ms" else "left")
+    table = _table(title, ("step", "estimate", "σ", "status", "reason", "ms"), left=("step", "estimate", "σ", "status", "reason"))
     for r in loc.steps:
         value, sigma = _fmt_estimate(r.estimate)
         style = _STATUS_STYLE.get(r.status.value, "")
@@ -86,9 +99,7 @@ def steps_table(loc: factorloc.Localization, title: str = "Steps") -> Table:
 
 def pose_table(loc: factorloc.Localization) -> Table:
     """The fused pose with its σ and certainty."""
-    table = Table(title=f"Fused pose ({loc.fused_with})", title_justify="left")
-    for col in ("x (m)", "y (m)", "θ (°)", "σx (cm)", "σy (cm)", "σθ (°)", "P(±5 cm, ±1°)"):
-        table.add_column(col, justify="right")
+    table = _table(f"Fused pose ({loc.fused_with})", ("x (m)", "y (m)", "θ (°)", "σx (cm)", "σy (cm)", "σθ (°)", "P(±5 cm, ±1°)"))
     sx, sy, st = loc.sigmas
     u = {c.value for c in loc.undetermined}
 
@@ -180,18 +191,12 @@ def _graded(v: Any, text: str, good: bool) -> str:
 
 def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> Table:
     """Accuracy, honesty and speed of the fused poses: one row for all queries, then one per fault."""
-    table = Table(
-        title=title,
-        title_justify="left",
-        header_style="bold",
-        box=box.SIMPLE_HEAD,
-        padding=(0, 1),
-        pad_edge=False,
-        caption="position in cm, heading θ in degrees; NEES ≈ 3 and conf. wrong ≤ 1 % when the covariance is honest",
-        caption_justify="left",
+    table = _table(
+        title,
+        ("queries", "n", "pos\nRMSE", "pos\np95", "θ\nRMSE", "θ\np95", "NEES", "conf.\nwrong", "full\npose", "ms"),
+        "position in cm, heading θ in degrees; NEES ≈ 3 and conf. wrong ≤ 1 % when the covariance is honest",
+        left=("queries",),
     )
-    for col in ("queries", "n", "pos\nRMSE", "pos\np95", "θ\nRMSE", "θ\np95", "NEES", "conf.\nwrong", "full\npose", "ms"):
-        table.add_column(col, justify="left" if col == "queries" else "right", no_wrap=True)
 
     def row(label: str, s: dict[str, Any], style: str = "") -> None:
         nees, wrong = s["nees_mean"], s["confidently_wrong_rate"]
@@ -220,18 +225,12 @@ def _short(text: str, n: int = 60) -> str:
 
 def evaluation_steps_table(out: dict[str, Any], title: str = "Steps") -> Table:
     """Per step: availability (reliable, fused), its own accuracy, false positives, time, and why it was not fused."""
-    table = Table(
-        title=title,
-        title_justify="left",
-        header_style="bold",
-        box=box.SIMPLE_HEAD,
-        padding=(0, 1),
-        pad_edge=False,
-        caption="false +: called reliable but off by more than 3σ",
-        caption_justify="left",
+    table = _table(
+        title,
+        ("step", "reliable", "fused", "pos\nRMSE", "θ\nRMSE", "false\n+", "ms\nmedian", "ms\np95"),
+        "false +: called reliable but off by more than 3σ",
+        left=("step",),
     )
-    for col in ("step", "reliable", "fused", "pos\nRMSE", "θ\nRMSE", "false\n+", "ms\nmedian", "ms\np95"):
-        table.add_column(col, justify="left" if col == "step" else "right", no_wrap=True)
     for name, s in out["steps"].items():
         fp = s.get("false_positive_count", 0)
         table.add_row(
@@ -321,19 +320,16 @@ def evaluate(
 def bench_tables(out: dict[str, Any]) -> list[Table]:
     """The bench figures as rich tables: localize per step, seeded vs blind, ICP vs Open3D, fusion, cost curve."""
     loc = out["localize"]
-    t1 = Table(
-        title=f"localize() on {out['scenario']} ({out['queries']} queries × {loc['repeats']} repeats)", title_justify="left"
+    t1 = _table(
+        f"localize() on {out['scenario']} ({out['queries']} queries × {loc['repeats']} repeats)",
+        ("", "median ms", "p95 ms", "mean ms"),
     )
-    for col in ("", "median ms", "p95 ms", "mean ms"):
-        t1.add_column(col, justify="left" if not col else "right")
     t1.add_row("[bold]localize()[/]", _num(loc["median_ms"], ".1f"), _num(loc["p95_ms"], ".1f"), _num(loc["mean_ms"], ".1f"))
     for name, s in loc["steps"].items():
         t1.add_row(f"  {name}", _num(s["median_ms"], ".2f"), _num(s["p95_ms"], ".2f"), _num(s["mean_ms"], ".2f"))
 
     h = out["hierarchy"]
-    t2 = Table(title="Hierarchy ablation: every step seeded vs every step blind", title_justify="left")
-    for col in ("", "seeded", "blind", "blind / seeded"):
-        t2.add_column(col, justify="left" if not col else "right")
+    t2 = _table("Hierarchy ablation: every step seeded vs every step blind", ("", "seeded", "blind", "blind / seeded"))
     s, b = h["seeded"], h["blind"]
     t2.add_row(
         "median ms / query", _num(s["median_ms"], ".1f"), _num(b["median_ms"], ".1f"), _num(h["time_ratio"], ".1f", 1.0, "×")
@@ -355,9 +351,9 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
     t2.add_row("confidently-wrong fused", _pct(s["confidently_wrong_rate"]), _pct(b["confidently_wrong_rate"]), "")
 
     icp = out["icp_vs_open3d"]
-    t3 = Table(title=f"ICP vs Open3D point-to-plane ({icp.get('pairs', 0)} pairs, same seeds)", title_justify="left")
-    for col in ("", "ours", "Open3D", "Open3D / ours"):
-        t3.add_column(col, justify="left" if not col else "right")
+    t3 = _table(
+        f"ICP vs Open3D point-to-plane ({icp.get('pairs', 0)} pairs, same seeds)", ("", "ours", "Open3D", "Open3D / ours")
+    )
     if icp.get("pairs"):
         t3.add_row(
             "median ms",
@@ -380,9 +376,7 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
         t3.add_row("success (< 5 cm, < 1°)", _pct(icp["ours_success_rate"]), _pct(icp["open3d_success_rate"]), "")
 
     f = out["fusion"]
-    t4 = Table(title=f"Fusion: GTSAM graph vs closed-form product ({f.get('queries', 0)} queries)", title_justify="left")
-    for col in ("", "value"):
-        t4.add_column(col, justify="left" if not col else "right")
+    t4 = _table(f"Fusion: GTSAM graph vs closed-form product ({f.get('queries', 0)} queries)", ("", "value"))
     if f.get("queries"):
         t4.add_row("graph median", _num(f["graph_median_us"], ".0f", 1.0, " µs"))
         t4.add_row("product median", _num(f["product_median_us"], ".0f", 1.0, " µs"))
@@ -395,10 +389,12 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
         )
 
     c = out["cost_curve"]
-    t5 = Table(title=f"Cost curve (exponent of t ∝ scale^k: {_num(c['exponent'], '.2f')})", title_justify="left")
     steps = list(c["points"][0]["steps_median_ms"])
-    for col in ["scale", "pano width", "ref cloud", "query cloud", "ms / query", *steps]:
-        t5.add_column(col, justify="right")
+    t5 = _table(
+        f"Cost curve (exponent of t ∝ scale^k: {_num(c['exponent'], '.2f')})",
+        ("scale", "pano width", "ref cloud", "query cloud", "ms / query", *steps),
+        left=(),
+    )
     for p in c["points"]:
         t5.add_row(
             f"{p['factor']:g}×",
