@@ -280,8 +280,22 @@ def _jsonable(v: Any) -> Any:
 # --------------------------------------------------------------------------
 # Sensor inputs
 # --------------------------------------------------------------------------
+class _ImageSize:
+    """``width_px`` and ``height_px`` of an ``image_bgr`` (H×W×3)."""
+
+    image_bgr: np.ndarray
+
+    @property
+    def width_px(self) -> int:
+        return int(self.image_bgr.shape[1])
+
+    @property
+    def height_px(self) -> int:
+        return int(self.image_bgr.shape[0])
+
+
 @dataclass(frozen=True, eq=False)
-class Panorama:
+class Panorama(_ImageSize):
     """A 360° cylindrical panorama (BGR uint8, H×W×3).
 
     Columns map linearly to azimuth in the frame of the robot that took it
@@ -309,14 +323,6 @@ class Panorama:
         object.__setattr__(self, "azimuth_col0_rad", finite_float("Panorama.azimuth_col0_rad", self.azimuth_col0_rad))
 
     @property
-    def width_px(self) -> int:
-        return int(self.image_bgr.shape[1])
-
-    @property
-    def height_px(self) -> int:
-        return int(self.image_bgr.shape[0])
-
-    @property
     def rad_per_px(self) -> float:
         """Angular width of one column."""
         return 2.0 * math.pi / self.width_px
@@ -332,7 +338,7 @@ class Panorama:
 
 
 @dataclass(frozen=True, eq=False)
-class CameraImage:
+class CameraImage(_ImageSize):
     """A pinhole camera image (BGR uint8, H×W×3) taken by the robot.
 
     ``hfov_rad`` is the horizontal field of view; pixels are square and the
@@ -359,14 +365,6 @@ class CameraImage:
         object.__setattr__(self, "pitch_rad", finite_float("CameraImage.pitch_rad", self.pitch_rad))
         if self.cx_px is not None:
             object.__setattr__(self, "cx_px", finite_float("CameraImage.cx_px", self.cx_px))
-
-    @property
-    def width_px(self) -> int:
-        return int(self.image_bgr.shape[1])
-
-    @property
-    def height_px(self) -> int:
-        return int(self.image_bgr.shape[0])
 
     @property
     def focal_px(self) -> float:
