@@ -45,7 +45,7 @@ from factorloc.evaluation import metrics
 from factorloc.evaluation.runner import Case, EvaluationSet, HierarchyRun, evaluate, evaluation_set, run_hierarchy
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
-from factorloc.gating import consistency_gate
+from factorloc.gating import consistency_gate, seed_audit
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Panorama, PointCloud, Query, Reference, Scan, StepStatus
 
@@ -313,8 +313,10 @@ def _se2_error(est: Pose2, true: Pose2) -> tuple[float, float]:
 # --------------------------------------------------------------------------
 # GTSAM vs product
 # --------------------------------------------------------------------------
-def _gated_inputs(reports: Sequence[Any], probability: float, consistency: bool) -> list[Estimate]:
-    reliable = [r.estimate for r in reports if r.estimate is not None and r.estimate.reliable]
+def _gated_inputs(reports: Sequence[Any], probability: float, consistency: bool, audit: bool = True) -> list[Estimate]:
+    ran = [r.estimate for r in reports if r.estimate is not None]
+    contradicted = seed_audit(ran) if audit else {}
+    reliable = [e for i, e in enumerate(ran) if e.reliable and i not in contradicted]
     if not consistency:
         return reliable
     out = []
@@ -337,7 +339,7 @@ def bench_fusion(run: HierarchyRun, *, settings: BenchSettings = BenchSettings()
     graph, product = GraphFusion(), ProductFusion()
     tg, tp, dpos, dth, dvar, coupled = [], [], [], [], [], []
     for q in run.runs:
-        inputs = _gated_inputs(q.reports, gating.consistency_probability, gating.consistency)
+        inputs = _gated_inputs(q.reports, gating.consistency_probability, gating.consistency, gating.seed_audit)
         if not inputs:
             continue
         times = {}

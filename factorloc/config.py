@@ -33,10 +33,15 @@ class GatingConfig:
     exceeds the χ² quantile ``consistency_probability`` (for its number of
     components) is rejected, worst first, until all agree. Between two that
     disagree equally, the earlier (cheaper, less exact) step is rejected.
+
+    ``seed_audit`` rejects a reliable estimate that a later step's data
+    contradict as a seed (:func:`factorloc.gating.seed_audit`: e.g. a
+    kidnapped robot's odometry, around which the scan fits nowhere).
     """
 
     consistency: bool = True
     consistency_probability: float = 0.999
+    seed_audit: bool = True
 
     def __post_init__(self) -> None:
         if not 0.0 < self.consistency_probability < 1.0:

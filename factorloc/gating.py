@@ -12,7 +12,13 @@ Two kinds of gate:
   patent's fusion, the test is per axis group: positions are tested against
   positions (2 degrees of freedom), headings against headings (1), so a
   full-pose estimate can lose its position and keep its heading.
+- **seed audit** (beyond the patent): a later step whose own data had enough
+  support but fit nowhere near the seed it was given, and found nothing
+  reliable elsewhere, contradicts that seed (:func:`seed_audit`). The
+  odometry of a kidnapped robot is the case: it cannot know it was moved,
+  and without the audit it is fused as reliable while metres wrong.
 """
+
 
 from __future__ import annotations
 
@@ -183,4 +189,77 @@ def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999) 
     return verdicts
 
 
-__all__ = ["GROUPS", "POSITION", "HEADING", "Verdict", "chi2_threshold", "consistency_gate", "mahalanobis_sq", "sigma_gate"]
+#: The diagnostic key by which a step reports that its data contradict its seed (value: the reason, a string).
+SEED_MISFIT = "seed_misfit"
+
+
+def seed_misfit(estimate: Estimate) -> str:
+    """Why ``estimate``'s own data contradict the seed it was given ("" when they do not).
+
+    A step reports it in ``diagnostics["seed_misfit"]`` (a non-empty reason).
+    The ICP step's existing diagnostics are also read: an ICP that was
+    ``seeded`` yet fell back to its global search (``used_global_init``) had a
+    seeded alignment that failed for a reason other than degenerate geometry
+    (a degenerate seeded fit does not search elsewhere: the scan is the same),
+    i.e. the scan — at least ``min_inliers`` points — did not fit around the
+    seed; if the global search found nothing reliable either, the seed is
+    the suspect. An estimate that is itself reliable contradicts nothing here
+    (the consistency gate weighs it against the seed).
+    """
+    if estimate.reliable:
+        return ""
+    d = estimate.diagnostics
+    reason = d.get(SEED_MISFIT)
+    if reason:
+        return str(reason)
+    if d.get("seeded") and d.get("used_global_init"):
+        n = d.get("n_query_points")
+        pts = f"{int(n)} query points" if isinstance(n, (int, float)) and math.isfinite(n) else "the query data"
+        return f"{estimate.step}: {pts} fit nowhere near the seed (seeded alignment failed, global search unreliable)"
+    return ""
+
+
+def seed_audit(estimates: Sequence[Estimate]) -> dict[int, str]:
+    """Reliable estimates that a later step's data contradict as seeds, with the reason.
+
+    ``estimates`` are one query's estimates in hierarchy order (reliable or
+    not). For each estimate with a :func:`seed_misfit`, its *position seed*
+    — the latest reliable position-measuring estimate before it, the one
+    :meth:`factorloc.estimators.base.Hypotheses.position` handed it — is
+    contradicted unless a reliable estimate from that step on measures the
+    position (then the consistency gate decides between them). The whole
+    seed estimate is rejected, heading included: a robot carried away was
+    also turned, and the heading steps seeded by it verified only a window
+    around its heading.
+
+    Returns
+    -------
+    dict
+        Index in ``estimates`` → reason, for each contradicted seed.
+    """
+    out: dict[int, str] = {}
+    for j, e in enumerate(estimates):
+        why = seed_misfit(e)
+        if not why:
+            continue
+        if any(later.reliable and later.measures(Component.X) for later in estimates[j:]):
+            continue
+        seed = next((i for i in range(j - 1, -1, -1) if estimates[i].reliable and estimates[i].measures(Component.X)), None)
+        if seed is not None and seed not in out:
+            out[seed] = f"seed contradicted by {why}"
+    return out
+
+
+__all__ = [
+    "GROUPS",
+    "HEADING",
+    "POSITION",
+    "SEED_MISFIT",
+    "Verdict",
+    "chi2_threshold",
+    "consistency_gate",
+    "mahalanobis_sq",
+    "seed_audit",
+    "seed_misfit",
+    "sigma_gate",
+]

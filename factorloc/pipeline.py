@@ -3,7 +3,8 @@
 :func:`localize` runs odometry → compass → correlation → ICP. Each step gets
 the *reliable* estimates of the steps before it as hypotheses (seeds), a
 step whose inputs are absent is skipped, every step is timed. Then the
-consistency gate drops the parts of reliable estimates that disagree with
+seed audit drops a seed that a later step's data contradict (a kidnapped
+robot's odometry), the consistency gate drops the parts of reliable estimates that disagree with
 the others, and a fusion strategy (GTSAM graph by default) returns the
 maximum-likelihood pose and its world-frame covariance.
 """
@@ -28,7 +29,7 @@ from factorloc.estimators.odometry import OdometryStep
 from factorloc.fusion.base import FusionStrategy
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
-from factorloc.gating import consistency_gate
+from factorloc.gating import consistency_gate, seed_audit
 from factorloc.geometry import Pose2
 from factorloc.types import FULL, Estimate, Localization, Query, Reference, StepReport, StepStatus
 
@@ -121,7 +122,9 @@ class Localizer:
 def _gate(
     produced: list[tuple[Step, Estimate | None, str, float, bool]], gating: GatingConfig
 ) -> tuple[list[StepReport], list[Estimate]]:
-    reliable = [est for _, est, _, _, _ in produced if est is not None and est.reliable]
+    ran = [est for _, est, _, _, _ in produced if est is not None]
+    contradicted = {id(ran[i]): why for i, why in seed_audit(ran).items()} if gating.seed_audit else {}
+    reliable = [est for est in ran if est.reliable and id(est) not in contradicted]
     verdicts = consistency_gate(reliable, gating.consistency_probability) if gating.consistency else []
     verdict_of = {id(v.estimate): v for v in verdicts}
     reports: list[StepReport] = []
@@ -133,6 +136,8 @@ def _gate(
             reports.append(StepReport(step.name, StepStatus.SKIPPED, None, "inputs absent", dt))
         elif not est.reliable:
             reports.append(StepReport(step.name, StepStatus.UNRELIABLE, est, est.reason or "unreliable", dt))
+        elif id(est) in contradicted:
+            reports.append(StepReport(step.name, StepStatus.INCONSISTENT, est, contradicted[id(est)], dt))
         else:
             verdict = verdict_of.get(id(est))
             part = est if verdict is None else verdict.accepted_estimate()

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from factorloc import Component, Estimate, Pose2
-from factorloc.gating import chi2_threshold, consistency_gate, mahalanobis_sq, sigma_gate
+from factorloc.gating import chi2_threshold, consistency_gate, mahalanobis_sq, seed_audit, sigma_gate
 
 
 def test_sigma_gate_uses_the_long_axis_of_the_position_covariance() -> None:
@@ -59,3 +59,40 @@ def test_consistent_estimates_all_pass() -> None:
         ests = [Estimate.position(f"e{i}", *(truth + rng.normal(scale=0.1, size=2)), 0.1, 0.1) for i in range(4)]
         passed += all(v.fully_accepted for v in consistency_gate(ests, 0.999))
     assert passed >= 195  # false rejections at the 0.1 % level per test, a few rounds
+
+
+def _icp_misfit(x: float, y: float, *, seeded: bool = True, used_global: bool = True, reliable: bool = False) -> Estimate:
+    """An ICP estimate as the ICP step reports a seeded alignment that failed and a global search that found nothing sure."""
+    return Estimate.pose(
+        "icp",
+        Pose2(x, y, 0.3),
+        0.005,
+        0.005,
+        0.003,
+        reliable=reliable,
+        reason="ambiguous: a distinct solution scores 0.39 vs 0.43 (global initialization, widened)",
+        diagnostics={"seeded": seeded, "used_global_init": used_global, "n_query_points": 360},
+    )
+
+
+def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() -> None:
+    odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
+    compass = Estimate.heading("compass", 1.2, 0.1, reliable=False, reason="2 inlier pairs < 8")
+    contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9)])
+    assert list(contradicted) == [0] and "360 query points fit nowhere near the seed" in contradicted[0]
+    # an explicit reason from the step is used as given
+    told = Estimate.heading("icp", 0.0, 0.1, reliable=False, diagnostics={"seed_misfit": "fitness 0.02 at the seed"})
+    assert seed_audit([odo, told]) == {0: "seed contradicted by fitness 0.02 at the seed"}
+
+
+def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
+    odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
+    # a degenerate seeded fit does not search globally: it says nothing against the seed
+    assert seed_audit([odo, _icp_misfit(3.0, 0.9, used_global=False)]) == {}
+    # a blind ICP was given no seed
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9, seeded=False)]) == {}
+    # a reliable ICP is weighed against the seed by the consistency gate instead
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9, reliable=True)]) == {}
+    # no reliable position seed before it: nothing to contradict
+    unreliable_odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.6, 0.6, 0.5, reliable=False)
+    assert seed_audit([unreliable_odo, _icp_misfit(1.3, 1.9)]) == {}

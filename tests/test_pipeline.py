@@ -140,3 +140,30 @@ def test_fuse_reports_verdicts_for_each_estimate() -> None:
     assert np.allclose([loc.pose.x, loc.pose.y, loc.pose.theta], [1.03, 0.48, 0.17], atol=1e-9)
     with pytest.raises(InputError, match=r"estimates\[0\]"):
         fuse([{"step": "a"}])  # type: ignore[list-item]
+
+
+def test_kidnapped_robot_whose_scan_fits_nowhere_near_its_odometry_is_not_localized_confidently() -> None:
+    """q0044 and q0086 of ``simulate --world apartment --queries 300 --seed 7``: kidnapped 0.7 and 1.7 m, the
+    odometry reliable (σ ≤ 10 cm) but 66 and 173 cm off, every other step unreliable; the seeded ICP failed and
+    its global search was ambiguous. Fused, the odometry was confidently wrong; the seed audit rejects it.
+    q0017 (fault-free, ICP degenerate along one wall, odometry 1 cm off) keeps its odometry."""
+    from factorloc.sim import generate_scenario
+
+    scenario = generate_scenario("apartment", 300, 7, only_queries=[17, 44, 86])
+    localizer = Localizer(scenario.references[0].reference)
+    for sq in scenario.queries:
+        loc = localizer.localize(sq.query)
+        odo = loc.step("odometry")
+        odo_error_m = math.hypot(odo.estimate.values[0] - sq.truth.x, odo.estimate.values[1] - sq.truth.y)
+        assert odo.estimate.reliable
+        if "kidnapped" in sq.faults:
+            assert odo_error_m > 0.6 and odo.estimate.sigma("x") < 0.1
+            assert odo.status is StepStatus.INCONSISTENT and "seed contradicted by icp" in odo.reason
+            assert not loc.determined and np.isinf(np.diag(loc.covariance)).all()
+            # without the audit the same query was fused and wrong by > 3σ
+            cfg = Config.from_dict({"gating": {"seed_audit": False}})
+            unaudited = fuse([s.estimate for s in loc.steps if s.estimate is not None], gating=cfg.gating)
+            assert unaudited.determined and abs(unaudited.pose.x - sq.truth.x) + abs(unaudited.pose.y - sq.truth.y) > 0.6
+        else:
+            assert sq.faults == () and odo_error_m < 0.05
+            assert odo.status is StepStatus.FUSED and loc.determined
