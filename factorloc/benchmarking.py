@@ -193,9 +193,7 @@ def _false_positives(run: HierarchyRun) -> dict[str, Any]:
     }
 
 
-def bench_hierarchy(
-    seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[HierarchyRun]
-) -> dict[str, Any]:
+def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[HierarchyRun]) -> dict[str, Any]:
     """Seeded vs blind: time per query, false positives (per step and total), confidently-wrong fused results, ratios.
 
     ``time_ratio`` = blind / seeded median localize() time; ``false_positive_ratio``

@@ -19,7 +19,6 @@ Two kinds of gate:
   and without the audit it is fused as reliable while metres wrong.
 """
 
-
 from __future__ import annotations
 
 import math
