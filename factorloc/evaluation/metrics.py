@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from factorloc.errors import InputError
@@ -60,6 +61,7 @@ __all__ = [
     "nees_mean",
     "normalized_nees_mean",
     "outside_ellipse",
+    "overlap_fraction",
     "pose_errors",
     "position_error_m",
     "summarize",
@@ -279,6 +281,55 @@ def confidently_wrong(
         sigma = np.sqrt(np.diagonal(cov, axis1=1, axis2=2))
         beyond = np.where(mask, np.abs(np.nan_to_num(err)) > n_sigma * np.where(mask, sigma, 1.0), False)
     return rel & mask.any(axis=1) & beyond.any(axis=1)
+
+
+# --------------------------------------------------------------------------
+# Overlap of what a query sensed with what the reference sensed
+# --------------------------------------------------------------------------
+def overlap_fraction(
+    query_points_m: np.ndarray, reference_points_m: np.ndarray | cKDTree, radius_m: float = 0.05
+) -> float:
+    """Fraction of the query's surface points that lie within ``radius_m`` of a reference surface point.
+
+    Parameters
+    ----------
+    query_points_m
+        N×2 (or N×3: only x, y are used) surface points the query sensed, in
+        the **world** frame (placed by the query's *true* pose).
+    reference_points_m
+        M×2 (or M×3) surface points the reference sensed, world frame, or a
+        ``scipy.spatial.cKDTree`` of such 2D points (built once per reference).
+    radius_m
+        The match radius in the plane (m): the sensors' noise plus the
+        reference's point spacing.
+
+    Returns
+    -------
+    float
+        In [0, 1]; ``nan`` when either set is empty. Walls are vertical, so
+        points are compared in the horizontal plane: a surface seen by both at
+        different heights still counts.
+    """
+    q = np.asarray(query_points_m, dtype=np.float64)
+    if isinstance(reference_points_m, cKDTree):
+        tree = reference_points_m
+        if tree.m != 2:
+            raise InputError(f"a reference KD-tree must hold 2D points, got {tree.m}D")
+        n_ref = tree.n
+    else:
+        r = np.asarray(reference_points_m, dtype=np.float64)
+        if r.ndim != 2 or r.shape[1] not in (2, 3):
+            raise InputError(f"reference_points_m must be M×2 or M×3, got shape {r.shape}")
+        n_ref = len(r)
+        tree = cKDTree(r[:, :2]) if n_ref else None
+    if q.ndim != 2 or q.shape[1] not in (2, 3):
+        raise InputError(f"query_points_m must be N×2 or N×3, got shape {q.shape}")
+    if not radius_m > 0:
+        raise InputError(f"radius_m must be > 0, got {radius_m!r}")
+    if len(q) == 0 or n_ref == 0 or tree is None:
+        return math.nan
+    d, _ = tree.query(q[:, :2], distance_upper_bound=radius_m)
+    return float(np.mean(np.isfinite(d)))
 
 
 # --------------------------------------------------------------------------

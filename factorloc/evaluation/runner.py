@@ -64,10 +64,13 @@ __all__ = [
     "HierarchyRun",
     "QueryResult",
     "QueryRun",
+    "OVERLAP_MIN_FRACTION",
+    "OVERLAP_RADIUS_M",
     "SCHEMA_VERSION",
     "evaluate",
     "evaluation_set",
     "run_hierarchy",
+    "view_overlap",
 ]
 
 #: Version of the JSON written by :meth:`EvaluationReport.to_json_dict`.
@@ -78,6 +81,12 @@ DEFAULT_REFERENCE = "ref0"
 
 #: The tag under ``by_fault`` that collects queries without any fault tag.
 NO_FAULT = "none"
+
+#: A query point overlaps the reference when a reference surface point lies within this radius (m, in the plane).
+OVERLAP_RADIUS_M = 0.05
+
+#: A query *has an overlapping view* when at least this fraction of its range points overlap the reference.
+OVERLAP_MIN_FRACTION = 0.3
 
 Progress = Callable[[int, int], None]
 
@@ -292,6 +301,7 @@ class QueryResult:
     ``pose`` and ``covariance`` (3×3, world frame, m² and rad², ``inf``
     variance where under-determined) are the strategy's answer;
     ``latency_s`` = the steps' time + the strategy's gating/fusion/update time.
+    ``view_overlap`` is :func:`view_overlap` of the query (``nan`` when unknown).
     """
 
     index: int
@@ -304,6 +314,7 @@ class QueryResult:
     latency_s: float
     strategy_s: float
     distance_to_reference_m: float
+    view_overlap: float = math.nan
 
     @property
     def determined(self) -> np.ndarray:
@@ -347,8 +358,59 @@ def _distance(case: Case, reference: Reference) -> float:
     return float(math.hypot(case.truth.x - reference.T_world_reference.x, case.truth.y - reference.T_world_reference.y))
 
 
+def _range_points(sensor: Any) -> np.ndarray | None:
+    return None if sensor is None or len(sensor) == 0 else np.asarray(sensor.points_m)[:, :2]
+
+
+def view_overlap(case: Case, reference: Reference, radius_m: float = OVERLAP_RADIUS_M, *, _tree: Any = None) -> float:
+    """Fraction of what the query's range sensor saw that the reference saw too (ground truth needed).
+
+    The query's scan (else its depth cloud), placed in the world by its
+    **true** pose, against the reference's scan and cloud placed by
+    ``T_world_reference``: :func:`metrics.overlap_fraction` in the plane with
+    ``radius_m`` (5 cm: the simulated sensors' noise plus the reference
+    cloud's point spacing at a few metres). The query *has an overlapping
+    view* when this is at least :data:`OVERLAP_MIN_FRACTION`: the two
+    observed a common part of the world, so localizing against this
+    reference is possible in principle. ``nan`` without truth or without
+    range data on either side (camera-only queries or references).
+    """
+    if case.truth is None:
+        return math.nan
+    pts = _range_points(case.query.scan)
+    if pts is None:
+        pts = _range_points(case.query.cloud)
+    if pts is None:
+        return math.nan
+    tree = _tree if _tree is not None else _reference_tree(reference)
+    if tree is None:
+        return math.nan
+    return metrics.overlap_fraction(case.truth.transform_points(pts), tree, radius_m)
+
+
+def _reference_tree(reference: Reference) -> Any:
+    from scipy.spatial import cKDTree
+
+    parts = [p for p in (_range_points(reference.scan), _range_points(reference.cloud)) if p is not None]
+    if not parts:
+        return None
+    return cKDTree(reference.T_world_reference.transform_points(np.vstack(parts)))
+
+
+def _view_overlaps(run: HierarchyRun) -> list[float]:
+    trees: dict[str, Any] = {}
+    out = []
+    for qr in run.runs:
+        rid = qr.case.reference_id
+        if rid not in trees:
+            trees[rid] = _reference_tree(run.dataset.reference_of(qr.case))
+        out.append(view_overlap(qr.case, run.dataset.reference_of(qr.case), _tree=trees[rid]) if trees[rid] is not None else math.nan)
+    return out
+
+
 def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryResult]:
     out = []
+    overlaps = _view_overlaps(run)
     for qr in run.runs:
         estimates = [r.estimate for r in qr.reports if r.estimate is not None]
         t0 = time.perf_counter()
@@ -366,6 +428,7 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
                 qr.steps_seconds + dt,
                 dt,
                 _distance(qr.case, run.dataset.reference_of(qr.case)),
+                overlaps[qr.index],
             )
         )
     return out
@@ -373,6 +436,7 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
 
 def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[QueryResult]:
     out = []
+    overlaps = _view_overlaps(run)
     strategy.reset()
     for qr in run.runs:
         t0 = time.perf_counter()
@@ -398,6 +462,7 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
                 qr.steps_seconds + dt,
                 dt,
                 _distance(qr.case, run.dataset.reference_of(qr.case)),
+                overlaps[qr.index],
             )
         )
     return out
@@ -550,6 +615,14 @@ class EvaluationReport:
                 sel = np.array([t in r.faults for r in self.results], dtype=bool)
                 by_fault[t] = self._summary(idx[sel])
             out["by_fault"] = by_fault
+            overlap = np.array([r.view_overlap for r in self.results], dtype=np.float64)
+            known = np.isfinite(overlap)
+            with np.errstate(invalid="ignore"):
+                overlapping = known & (overlap >= OVERLAP_MIN_FRACTION)
+            out["overlap_radius_m"] = OVERLAP_RADIUS_M
+            out["overlap_min_fraction"] = OVERLAP_MIN_FRACTION
+            out["overlapping_rate"] = _rate(overlapping, int(known.sum()))
+            out["overlapping"] = self._summary(idx[overlapping]) if overlapping.any() else {"queries": 0}
             self._cache["json"] = _finite(out)
         return self._cache["json"]
 

@@ -103,3 +103,18 @@ def test_bad_shapes_raise_input_errors() -> None:
         metrics.nees(np.zeros((2, 3)), np.zeros((3, 3, 3)))
     with pytest.raises(InputError, match="probability"):
         metrics.outside_ellipse(np.zeros(1), np.ones(1, dtype=int), 1.5)
+
+
+def test_overlap_fraction_counts_query_points_near_reference_surfaces_in_the_plane() -> None:
+    from factorloc.evaluation.metrics import overlap_fraction
+
+    wall = np.column_stack([np.linspace(0.0, 4.0, 401), np.zeros(401), np.full(401, 1.0)])  # 1 cm spacing, z = 1 m
+    # 30 points on the wall (other heights, 2 cm off it) and 10 on a wall the reference never saw
+    seen = np.column_stack([np.linspace(0.5, 3.5, 30), np.full(30, 0.02), np.linspace(0.1, 2.0, 30)])
+    unseen = np.column_stack([np.full(10, 6.0), np.linspace(0.0, 1.0, 10)])
+    query = np.vstack([seen[:, :2], unseen])
+    assert overlap_fraction(query, wall) == pytest.approx(0.75)
+    assert overlap_fraction(query, wall, radius_m=0.01) == 0.0  # 2 cm off the wall: outside a 1 cm radius
+    assert np.isnan(overlap_fraction(np.zeros((0, 2)), wall))
+    with pytest.raises(InputError, match="radius_m"):
+        overlap_fraction(query, wall, radius_m=0.0)

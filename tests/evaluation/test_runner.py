@@ -253,3 +253,30 @@ def test_a_scenario_with_two_references_localizes_each_query_against_its_own() -
     out = report.to_json_dict()
     assert out["scenario"] == "two-rooms" and out["by_fault"]["blur"]["queries"] == 1
     assert out["position_rmse_m"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_overlapping_scope_holds_the_queries_whose_scan_saw_the_reference_surfaces() -> None:
+    """A reference that saw one wall (y = 0, x in [0, 4]); queries whose scan sees that wall overlap, a query
+    whose scan sees only a wall 10 m away does not, a query without range data has an unknown overlap."""
+    wall_world = np.column_stack([np.linspace(0.0, 4.0, 401), np.zeros(401)])
+    T_ref = Pose2(2.0, 1.0, 0.5)
+    ref = Reference(scan=Scan(T_ref.inverse().transform_points(wall_world)), T_world_reference=T_ref)
+    cases, truth = [], {}
+    for qid, pose, seen in [
+        ("q0", Pose2(1.0, 1.5, 0.3), wall_world[100:300]),
+        ("q1", Pose2(3.0, 2.0, -1.0), np.vstack([wall_world[::4], [[3.0, 5.0]] * 20])),  # 101 of 121 points on it
+        ("q2", Pose2(2.0, 1.0, 2.0), np.column_stack([np.linspace(0, 4, 50), np.full(50, 10.0)])),
+    ]:
+        truth[qid] = pose
+        cases.append(Case(Query(scan=Scan(pose.inverse().transform_points(seen)), id=qid), pose))
+    truth["q3"] = Pose2(1.0, 1.0, 0.0)
+    cases.append(Case(Query(id="q3"), truth["q3"]))
+    data = EvaluationSet(ref, tuple(cases), name="walls")
+    report = evaluate(data, ProductFusion(), steps=[NoisyPoseStep("icp", truth, [0.02, 0.02, 0.01], 3)])
+    overlaps = [r.view_overlap for r in report.results]
+    assert overlaps[0] == pytest.approx(1.0) and overlaps[1] == pytest.approx(101 / 121) and overlaps[2] == 0.0
+    assert math.isnan(overlaps[3])
+    out = report.to_json_dict()
+    assert out["overlapping"]["queries"] == 2 and out["overlapping_rate"] == pytest.approx(2 / 3)
+    expected = math.sqrt(np.mean([float(np.hypot(*report.errors[i, :2])) ** 2 for i in (0, 1)]))
+    assert out["overlapping"]["position_rmse_m"] == pytest.approx(expected)
