@@ -286,9 +286,7 @@ def confidently_wrong(
 # --------------------------------------------------------------------------
 # Overlap of what a query sensed with what the reference sensed
 # --------------------------------------------------------------------------
-def overlap_fraction(
-    query_points_m: np.ndarray, reference_points_m: np.ndarray | cKDTree, radius_m: float = 0.05
-) -> float:
+def overlap_fraction(query_points_m: np.ndarray, reference_points_m: np.ndarray | cKDTree, radius_m: float = 0.05) -> float:
     """Fraction of the query's surface points that lie within ``radius_m`` of a reference surface point.
 
     Parameters

@@ -186,9 +186,7 @@ def evaluation_set(scenario: Any) -> EvaluationSet:
 
     if not isinstance(scenario, Scenario):
         raise InputError(f"scenario must be a factorloc.datasets.Scenario or an EvaluationSet, got {type(scenario).__name__}")
-    cases = tuple(
-        Case(q.query, q.truth, tuple(q.faults), q.reference_id, q.distance_from_reference_m) for q in scenario.queries
-    )
+    cases = tuple(Case(q.query, q.truth, tuple(q.faults), q.reference_id, q.distance_from_reference_m) for q in scenario.queries)
     refs = {r.id: r.reference for r in scenario.references}
     return EvaluationSet(refs, cases, name=scenario.name, world=scenario.world)
 
@@ -404,7 +402,8 @@ def _view_overlaps(run: HierarchyRun) -> list[float]:
         rid = qr.case.reference_id
         if rid not in trees:
             trees[rid] = _reference_tree(run.dataset.reference_of(qr.case))
-        out.append(view_overlap(qr.case, run.dataset.reference_of(qr.case), _tree=trees[rid]) if trees[rid] is not None else math.nan)
+        tree = trees[rid]
+        out.append(math.nan if tree is None else view_overlap(qr.case, run.dataset.reference_of(qr.case), _tree=tree))
     return out
 
 
