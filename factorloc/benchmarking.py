@@ -199,6 +199,16 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
     ``time_ratio`` = blind / seeded median localize() time; ``false_positive_ratio``
     = blind / seeded false-positive count (with 0 seeded false positives it is
     the blind count, a lower bound: ``false_positive_ratio_is_lower_bound``).
+
+    A step that is never reliable has no false positive: the per-step counts
+    are therefore given with the reliable counts they come from
+    (``steps_reliable_count``, ``steps_false_positive_per_reliable``), and the
+    fused outcome of each mode is compared too: ``confidently_wrong_count``
+    (and ``confidently_wrong_ratio`` = blind / seeded, a lower bound when
+    seeded has none), ``determined_rate`` (availability) and the RMSEs. Blind
+    steps get no hypotheses, so no later step can contradict an earlier one
+    (the pipeline's seed audit needs a *seeded* ICP): that is part of what
+    the ablation measures.
     """
     out: dict[str, Any] = {}
     for label, runs in (("seeded", seeded_runs), ("blind", blind_runs)):
@@ -212,8 +222,15 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
             "steps_median_ms": {k: _ms_stats(v)["median_ms"] for k, v in steps.items()},
             **{k: v for k, v in fp.items() if k != "steps"},
             "steps_false_positive_count": {k: v["false_positive_count"] for k, v in fp["steps"].items()},
+            "steps_reliable_count": {k: v["reliable_count"] for k, v in fp["steps"].items()},
+            "steps_false_positive_per_reliable": {
+                k: (v["false_positive_count"] / v["reliable_count"] if v["reliable_count"] else math.nan)
+                for k, v in fp["steps"].items()
+            },
             "steps_reliable_rate": {k: v["reliable_rate"] for k, v in report["steps"].items()},
             "confidently_wrong_rate": report["confidently_wrong_rate"],
+            "confidently_wrong_count": report["confidently_wrong_count"],
+            "determined_rate": report["determined_rate"],
             "position_rmse_m": report["position_rmse_m"],
             "heading_rmse_deg": report["heading_rmse_deg"],
         }
@@ -221,6 +238,8 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
     out["time_ratio"] = _ratio(b["median_ms"], s["median_ms"])
     out["false_positive_ratio"] = b["false_positive_count"] / max(s["false_positive_count"], 1)
     out["false_positive_ratio_is_lower_bound"] = s["false_positive_count"] == 0
+    out["confidently_wrong_ratio"] = b["confidently_wrong_count"] / max(s["confidently_wrong_count"], 1)
+    out["confidently_wrong_ratio_is_lower_bound"] = s["confidently_wrong_count"] == 0
     return out
 
 

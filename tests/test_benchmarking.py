@@ -108,3 +108,12 @@ def test_hierarchy_ablation_counts_false_positives_of_the_seeded_steps_only(room
     assert h["blind"]["steps_false_positive_count"] == {"odometry": 0, "compass": 3}
     assert h["false_positive_ratio"] == 3.0 and h["false_positive_ratio_is_lower_bound"] is True
     assert h["time_ratio"] > 0
+    # the counts come with what they are counted among, and the fused outcome of each mode
+    assert h["blind"]["steps_reliable_count"] == {"odometry": 3, "compass": 3}
+    assert h["blind"]["steps_false_positive_per_reliable"]["compass"] == 1.0
+    assert h["seeded"]["steps_false_positive_per_reliable"]["compass"] == 0.0
+    # blind, the 20°-wrong compass (σ 0.6°) and the odometry's heading (σ 1.7°, 1.1° off) disagree and the
+    # consistency gate drops the earlier of the two: every fused heading is 20° off at σ 0.6°; seeded, none is
+    assert h["blind"]["confidently_wrong_count"] == 3 and h["seeded"]["confidently_wrong_count"] == 0
+    assert h["confidently_wrong_ratio"] == 3.0 and h["confidently_wrong_ratio_is_lower_bound"] is True
+    assert h["blind"]["determined_rate"] == h["seeded"]["determined_rate"] == 1.0
