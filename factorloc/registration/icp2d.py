@@ -30,9 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factorloc.errors import InputError
-from factorloc.geometry import Pose2, rot2
+from factorloc.geometry import Pose2
 from factorloc.registration.kernels import Cauchy, RobustKernel
-from factorloc.registration.nn import KdTree2D
+from factorloc.registration.nn import LIFT_Z, KdTree2D
 from factorloc.registration.scan2d import estimate_normals_2d
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
@@ -126,6 +126,12 @@ class PreparedScan:
     the normals, ``c_ext``: ``nⱼ·pⱼ``, ``range2_ext``: squared ranges), each
     with one extra row at index M — the index the KD-tree returns for "no
     neighbour within the gate" — so that one gather serves every iteration.
+    ``lifted`` holds the points lifted to 3D for the KD-tree
+    (:data:`~factorloc.registration.nn.LIFT_Z`), ``rows`` (2, M+1, 3) the
+    coefficients that turn a lifted query point ``[q_x, q_y, 1]`` into the
+    residual ``nⱼ·q − cⱼ`` (``rows[1]``) and the rotation Jacobian about the
+    target origin ``n_y q_x − n_x q_y`` (``rows[0]``), and ``normals_t`` (2, M+1) the
+    normals as rows: what :func:`align` gathers per association.
     """
 
     points_m: np.ndarray
@@ -136,16 +142,37 @@ class PreparedScan:
     n_ext: np.ndarray = field(init=False, repr=False)
     c_ext: np.ndarray = field(init=False, repr=False)
     range2_ext: np.ndarray = field(init=False, repr=False)
+    lifted: np.ndarray = field(init=False, repr=False)
+    rows: np.ndarray = field(init=False, repr=False)
+    normals_t: np.ndarray = field(init=False, repr=False)
+    _usable: dict = field(init=False, repr=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         m = len(self.points_m)
+        nx, ny = self.normals[:, 0], self.normals[:, 1]
         n_ext = np.zeros((m + 1, 2))
         n_ext[:m] = self.normals
         c_ext = np.zeros(m + 1)
-        c_ext[:m] = np.einsum("ij,ij->i", self.normals, self.points_m)
+        c_ext[:m] = nx * self.points_m[:, 0] + ny * self.points_m[:, 1]
         r2 = np.zeros(m + 1)
         r2[:m] = self.ranges_m**2
-        for name, a in (("n_ext", n_ext), ("c_ext", c_ext), ("range2_ext", r2)):
+        rows = np.zeros((2, m + 1, 3))
+        rows[0, :m, 0] = ny
+        rows[0, :m, 1] = -nx
+        rows[1, :m, :2] = self.normals
+        rows[1, :, 2] = -c_ext
+        normals_t = np.ascontiguousarray(n_ext.T)
+        lifted = np.empty((m, 3))
+        lifted[:, :2] = self.points_m
+        lifted[:, 2] = LIFT_Z
+        for name, a in (
+            ("n_ext", n_ext),
+            ("c_ext", c_ext),
+            ("range2_ext", r2),
+            ("lifted", lifted),
+            ("rows", rows),
+            ("normals_t", normals_t),
+        ):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
 
@@ -158,6 +185,17 @@ class PreparedScan:
         ok[:-1] = self.quality >= min_normal_quality
         return ok
 
+    def _usable_weights(self, min_normal_quality: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`usable` and the same as 0/1 floats, cached per threshold (read-only)."""
+        got = self._usable.get(min_normal_quality)
+        if got is None:
+            ok = self.usable(min_normal_quality)
+            okf = ok.astype(np.float64)
+            ok.setflags(write=False)
+            okf.setflags(write=False)
+            got = self._usable[min_normal_quality] = (ok, okf)
+        return got
+
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
     """Build the KD-tree and PCA line normals of a target scan (once per reference)."""
@@ -166,8 +204,10 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
         raise InputError(f"target points_m must be N×2, got shape {pts.shape}")
     if len(pts) < 3:
         raise InputError(f"target scan needs >= 3 points, got {len(pts)}")
-    if not np.all(np.isfinite(pts)):
+    if not np.isfinite(pts).all():
         raise InputError("target points_m contains NaN or infinite values")
+    if pts is points_m and pts.flags.writeable:
+        pts = pts.copy()  # the caller's array stays writable; ours is frozen
     tree = KdTree2D(pts)
     normals, quality = estimate_normals_2d(pts, params.normal_k, params.normal_radius_m, tree)
     ranges = np.hypot(pts[:, 0], pts[:, 1])
@@ -263,66 +303,96 @@ def align(
     Returns the refined pose with fitness, RMSE, Chamfer distance and the
     linearisation at the solution. Never fails silently: when fewer than 3
     correspondences exist the result has ``n_inliers < 3``, ``converged =
-    False`` and a zero Hessian; the caller judges reliability.
+    False`` and a zero Hessian; the caller judges reliability. Raises
+    :class:`~factorloc.errors.InputError` on a malformed or non-finite source.
 
-    Cost: one batched KD-tree query per iteration (``workers=1``), the
-    residuals gathered from the target's precomputed terms
-    (:class:`PreparedScan`); after convergence one more query (bounded by
-    ``chamfer_cap_m``) serves the final linearisation, the fitness and the
-    source half of the Chamfer distance.
+    Cost. The iteration works on the source points lifted to homogeneous
+    ``[x, y, 1]`` (N×3, one matrix product per iteration moves them and
+    they are the KD-tree's query as they are). A search (``KdTree2D.nearest_lifted``,
+    one batched small_gicp query) gathers, per source point, the target's
+    residual coefficients (``PreparedScan.rows``) into a (2, N, 3) array;
+    each Gauss–Newton iteration is then one ``einsum`` for the residuals and
+    the rotation Jacobians, the kernel's weights and one (4×N)·(N×4) product
+    for the Hessian and gradient, whose rotation is moved from the target
+    origin to the source origin (``J_source = J_target · T``,
+    ``T = [[1, 0, t_y], [0, 1, −t_x], [0, 0, 1]]``, ``H ← Tᵀ H T``,
+    ``g ← Tᵀ g``) in scalar arithmetic. After convergence one more search
+    serves the final linearisation, the fitness and the source half of the
+    Chamfer distance, and a tree on the aligned source the target half.
     """
     src = np.asarray(source_points_m, dtype=np.float64)
     if src.ndim != 2 or src.shape[1] != 2:
         raise InputError(f"source_points_m must be N×2, got shape {src.shape}")
-    if len(src) < 3:
-        raise InputError(f"source scan needs >= 3 points, got {len(src)}")
+    n_src = len(src)
+    if n_src < 3:
+        raise InputError(f"source scan needs >= 3 points, got {n_src}")
     if not isinstance(T_init, Pose2):
         raise InputError(f"T_init must be a Pose2, got {type(T_init).__name__}")
+    src_h = np.empty((n_src, 3))
+    src_h[:, :2] = src
+    src_h[:, 2] = LIFT_Z
+    if not np.isfinite(src_h).all():
+        raise InputError("source_points_m contains NaN or infinite values")
     kernel = Cauchy(0.05) if kernel is None else kernel
-    usable = target.usable(params.min_normal_quality)
+    usable, usable_f = target._usable_weights(params.min_normal_quality)
     tree = target.tree
-    rho_rms = float(np.sqrt(np.mean(np.einsum("ij,ij->i", src, src))))
+    rows_t, normals_t = target.rows, target.normals_t
+    m_tgt = len(target)
+    src_r2 = src[:, 0] * src[:, 0] + src[:, 1] * src[:, 1]
+    rho_rms = math.sqrt(float(src_r2.mean()))
+    rho_max = math.sqrt(float(src_r2.max()))
     sp2 = params.sigma_point_m**2
-    var_src = None if params.sigma_bearing_rad == 0.0 else sp2 + params.sigma_bearing_rad**2 * np.einsum("ij,ij->i", src, src)
+    sb2 = params.sigma_bearing_rad**2
+    var_src = None if params.sigma_bearing_rad == 0.0 else sp2 + sb2 * src_r2
     theta = T_init.theta
-    t = np.array([T_init.x, T_init.y])
+    tx, ty = T_init.x, T_init.y
     converged = False
     it = 0
     min_gate = params.min_correspondence_m
-    nx_e, ny_e, c_e = target.n_ext[:, 0].copy(), target.n_ext[:, 1].copy(), target.c_ext
-    rho_max = float(np.sqrt(np.max(np.einsum("ij,ij->i", src, src))))
+    max_gate, shrink, reassociate_m = params.max_correspondence_m, params.shrink, params.reassociate_m
+    conv_t, conv_r = params.convergence_translation_m, params.convergence_rotation_rad
+    A = np.zeros((3, 3))  # homogeneous motion: [x, y, 1] @ A = [R (x, y) + t, 1]
+    A[2, 2] = 1.0
+    Z = np.empty((4, n_src))  # rows: n_x, n_y, rotation Jacobian about the target origin, residual
+    rows = w_pair = None
     moved = math.inf  # largest point motion since the last association (m)
     last_gate = -1.0
     for it in range(1, params.max_iterations + 1):
-        gate = max(min_gate, params.max_correspondence_m * params.shrink ** (it - 1))
-        q = src @ rot2(theta).T
-        q += t
-        if gate != last_gate or moved > params.reassociate_m:
-            # one batched KD-tree query; every source point takes part, those without a usable target
-            # point (j = M, or a poor normal) with weight 0
-            _, j = tree.query(q, k=1, distance_upper_bound=gate, workers=1)
-            ok = usable[j]
-            if np.count_nonzero(ok) < 3:
+        gate = max(min_gate, max_gate * shrink ** (it - 1))
+        c, s = math.cos(theta), math.sin(theta)
+        A[0, 0] = c
+        A[0, 1] = s
+        A[1, 0] = -s
+        A[1, 1] = c
+        A[2, 0] = tx
+        A[2, 1] = ty
+        q3 = src_h @ A
+        if gate != last_gate or moved > reassociate_m:
+            # one batched KD-tree query; every source point takes part, those without a usable target point within
+            # the gate with weight 0
+            d, j = tree.nearest_lifted(q3)
+            w_pair = usable_f.take(j)
+            w_pair *= d < gate
+            if np.count_nonzero(w_pair) < 3:
                 break
-            nx, ny, cj = nx_e[j], ny_e[j], c_e[j]
-            if var_src is None:
-                w_pair = ok
-            else:
-                w_pair = ok * (2.0 * sp2 / (var_src + sp2 + params.sigma_bearing_rad**2 * target.range2_ext[j]))
-            J = np.empty((3, len(src)))
-            J[0] = nx
-            J[1] = ny
+            if var_src is not None:
+                w_pair *= 2.0 * sp2 / (var_src + sp2 + sb2 * target.range2_ext.take(j))
+            rows = rows_t.take(j, axis=1)
+            normals_t.take(j, axis=1, out=Z[:2])
             moved, last_gate = 0.0, gate
-        qx, qy = q[:, 0], q[:, 1]
-        r = nx * qx + ny * qy - cj
-        J[2] = ny * (qx - t[0]) - nx * (qy - t[1])
-        w = kernel.weight(r) * w_pair
-        Jw = J * w
-        (h00, h01, h02), (_, h11, h12), (_, _, h22) = (Jw @ J.T).tolist()
-        g0, g1, g2 = (Jw @ r).tolist()
-        h00 += 1e-9
-        h11 += 1e-9
+        np.einsum("kij,ij->ki", rows, q3, out=Z[2:])
+        w = kernel.weight(Z[3])
+        w *= w_pair
+        (b00, b01, b02, g0), (_, b11, b12, g1), (_, _, b22, g2), _ = ((Z * w) @ Z.T).tolist()
+        # rotation about the source origin t: J_source = J_target · T, T = [[1, 0, t_y], [0, 1, −t_x], [0, 0, 1]]
+        h02 = b00 * ty - b01 * tx + b02
+        h12 = b01 * ty - b11 * tx + b12
+        h22 = h02 * ty - h12 * tx + (b02 * ty - b12 * tx + b22)
+        g2 = g0 * ty - g1 * tx + g2
+        h00 = b00 + 1e-9
+        h11 = b11 + 1e-9
         h22 += 1e-9
+        h01 = b01
         # δ = −H⁻¹ g for the symmetric 3×3 H (cofactors)
         c00 = h11 * h22 - h12 * h12
         c01 = h02 * h12 - h01 * h22
@@ -343,32 +413,35 @@ def align(
             dx, dy, dth = dx * f, dy * f, dth * f
         # apply: rotate about the source origin t, then translate
         theta += dth
-        t[0] += dx
-        t[1] += dy
+        tx += dx
+        ty += dy
         moved += math.hypot(dx, dy) + abs(dth) * rho_max
-        if (
-            gate <= min_gate
-            and math.hypot(dx, dy) < params.convergence_translation_m
-            and abs(dth) < params.convergence_rotation_rad
-        ):
+        if gate <= min_gate and math.hypot(dx, dy) < conv_t and abs(dth) < conv_r:
             converged = True
             break
-    T = Pose2(float(t[0]), float(t[1]), float(theta))
-    q = src @ rot2(T.theta).T
-    q += t
+    T = Pose2(tx, ty, theta)
+    c, s = math.cos(T.theta), math.sin(T.theta)
+    A[0, 0] = c
+    A[0, 1] = s
+    A[1, 0] = -s
+    A[1, 1] = c
+    A[2, 0] = tx
+    A[2, 1] = ty
+    q3 = src_h @ A
     cap = params.chamfer_cap_m
-    d_src, j = tree.query(q, k=1, distance_upper_bound=max(cap, min_gate, params.fitness_distance_m), workers=1)
-    j = np.where(d_src < min_gate, j, len(target))  # the final linearisation uses the smallest gate
-    J, r, w, var = _linearize(target, usable, q, j, t, kernel, params, var_src if var_src is not None else np.full(len(src), sp2))
+    d_src, j = tree.nearest_lifted(q3)
+    j[~(d_src < min_gate)] = m_tgt  # the final linearisation uses the smallest gate
+    t = np.array([tx, ty])
+    J, r, w, var = _linearize(target, usable, q3, j, t, kernel, params, var_src if var_src is not None else np.full(n_src, sp2))
     H = (J.T * w) @ J if len(r) else np.zeros((3, 3))
-    fitness = float(np.count_nonzero(d_src < params.fitness_distance_m)) / len(src)
+    fitness = float(np.count_nonzero(d_src < params.fitness_distance_m)) / n_src
     if len(r):
         rin = r[np.abs(r) < params.fitness_distance_m]
-        rmse = float(np.sqrt(np.mean(rin**2))) if len(rin) else float("inf")
+        rmse = math.sqrt(float(np.mean(rin * rin))) if len(rin) else math.inf
     else:
-        rmse = float("inf")
-    d_tgt, _ = KdTree2D(q).query(target.points_m, k=1, distance_upper_bound=cap, workers=1)
-    chamfer = 0.5 * (float(np.mean(np.minimum(d_src, cap))) + float(np.mean(np.minimum(d_tgt, cap))))
+        rmse = math.inf
+    d_tgt, _ = KdTree2D(q3[:, :2]).nearest_lifted(target.lifted)
+    chamfer = 0.5 * (float(np.minimum(d_src, cap).mean()) + float(np.minimum(d_tgt, cap).mean()))
     for a in (H, J, r, w, var):
         a.setflags(write=False)
     return IcpResult(

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factorloc.errors import InputError
-from factorloc.registration.nn import KdTree2D
+from factorloc.registration.nn import KdTree2D, lift_2d
 from factorloc.types import PointCloud, Scan
 
 __all__ = [
@@ -139,42 +139,63 @@ def estimate_normals_2d(
     quality : (N,) in [0, 1]
     """
     pts = np.asarray(points_m, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise InputError(f"points_m must be N×2, got shape {pts.shape}")
     n = len(pts)
     if n == 0:
         return np.zeros((0, 2)), np.zeros(0)
-    tree = KdTree2D(pts) if tree is None else tree
+    if not np.isfinite(pts).all():
+        raise InputError("points_m contains NaN or infinite values")
+    if tree is None:
+        tree = KdTree2D(pts)
+        lifted = tree.lifted
+    else:
+        lifted = lift_2d(pts)
     kk = min(k, n)
-    d, idx = tree.query(pts, k=kk, distance_upper_bound=max_radius_m, workers=1)
-    d = d.reshape(n, kk)
+    d, idx = tree.nearest_lifted(lifted, kk)
     idx = idx.reshape(n, kk)
-    valid = d < np.inf
-    # neighbours relative to the point itself (no cancellation), missing ones at offset 0 with weight 0
-    rel = pts[np.where(valid, idx, np.arange(n)[:, None])] - pts[:, None, :]  # n×k×2
-    ux, uy = rel[..., 0], rel[..., 1]
-    cnt = valid.sum(axis=1).astype(np.float64)
+    # neighbours within the radius, relative to the point itself (no cancellation); the others weigh 0
+    vf = (d.reshape(n, kk) < max_radius_m).astype(np.float64)
+    x, y = pts[:, 0], pts[:, 1]
+    ux = x.take(idx)
+    ux -= x[:, None]
+    ux *= vf
+    uy = y.take(idx)
+    uy -= y[:, None]
+    uy *= vf
+    ones = np.ones(kk)
+    cnt = vf @ ones
+    sx, sy = ux @ ones, uy @ ones
     inv = 1.0 / np.maximum(cnt, 1.0)
-    mx, my = ux.sum(axis=1) * inv, uy.sum(axis=1) * inv
-    # scatter Σ (u − ū)(u − ū)ᵀ = Σ u uᵀ − cnt · ū ūᵀ (missing neighbours add 0 to every sum)
-    sxx = np.einsum("ij,ij->i", ux, ux) - cnt * mx * mx
-    syy = np.einsum("ij,ij->i", uy, uy) - cnt * my * my
-    sxy = np.einsum("ij,ij->i", ux, uy) - cnt * mx * my
+    # scatter Σ (u − ū)(u − ū)ᵀ = Σ u uᵀ − (Σ u)(Σ u)ᵀ / cnt
+    sxx = np.einsum("ij,ij->i", ux, ux) - sx * sx * inv
+    syy = np.einsum("ij,ij->i", uy, uy) - sy * sy * inv
+    sxy = np.einsum("ij,ij->i", ux, uy) - sx * sy * inv
     # closed-form eigen-decomposition of the 2×2 symmetric [[sxx, sxy], [sxy, syy]]
-    tr = sxx + syy
-    det_term = np.sqrt(np.maximum((sxx - syy) ** 2 + 4.0 * sxy * sxy, 0.0))
-    lmax = 0.5 * (tr + det_term)
-    lmin = 0.5 * (tr - det_term)
-    # direction of the line (largest eigenvalue): angle 0.5·atan2(2 sxy, sxx - syy)
-    phi = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
-    normals = np.column_stack([-np.sin(phi), np.cos(phi)])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        quality = np.where(lmax > 0.0, 1.0 - lmin / lmax, 0.0)
-    poor = cnt < 3
-    to_sensor = -pts / np.maximum(np.hypot(pts[:, 0], pts[:, 1]), 1e-12)[:, None]
-    normals[poor] = to_sensor[poor]
-    quality[poor] = 0.0
-    flip = normals[:, 0] * to_sensor[:, 0] + normals[:, 1] * to_sensor[:, 1] < 0.0
-    normals[flip] *= -1.0
-    return normals, np.clip(quality, 0.0, 1.0)
+    half_diff = 0.5 * (sxx - syy)
+    root = np.sqrt(half_diff * half_diff + sxy * sxy)
+    mean = 0.5 * (sxx + syy)
+    lmax = mean + root
+    lmin = mean - root
+    # direction of the line (largest eigenvalue): angle φ = 0.5·atan2(2 sxy, sxx − syy); normal (−sin φ, cos φ)
+    phi = 0.5 * np.arctan2(sxy, half_diff)
+    normals = np.empty((n, 2))
+    np.sin(phi, out=normals[:, 0])
+    normals[:, 0] *= -1.0
+    np.cos(phi, out=normals[:, 1])
+    quality = lmin / np.maximum(lmax, 1e-300)
+    np.subtract(1.0, quality, out=quality)
+    quality *= lmax > 0.0  # all neighbours at one spot: no line
+    rng = np.hypot(x, y)
+    to_sensor = pts / -np.maximum(rng, 1e-12)[:, None]
+    poor = cnt < 3.0
+    if poor.any():
+        normals[poor] = to_sensor[poor]
+        quality[poor] = 0.0
+    # face the sensor
+    normals *= np.where(np.einsum("ij,ij->i", normals, to_sensor) < 0.0, -1.0, 1.0)[:, None]
+    np.clip(quality, 0.0, 1.0, out=quality)
+    return normals, quality
 
 
 def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0.0, max_gap_rad: float = 0.35) -> np.ndarray:

@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.icp2d import IcpParams, align, prepare_target
-from factorloc.registration.kernels import Cauchy
+from factorloc.registration.kernels import L2, Cauchy, Huber, Tukey
 from factorloc.registration.open3d_peer import open3d_icp
 
 TRUE = Pose2(0.6, -0.4, math.radians(25.0))
@@ -63,3 +64,164 @@ def test_align_rejects_malformed_input(room_points: np.ndarray) -> None:
         align(target, np.zeros((2, 2)), Pose2())
     with pytest.raises(InputError, match="min_correspondence_m"):
         IcpParams(min_correspondence_m=2.0, max_correspondence_m=1.0)
+
+
+# --------------------------------------------------------------------------
+# the fast align against a plain reference implementation of the same algorithm
+# --------------------------------------------------------------------------
+def _reference_align(target, src, T_init: Pose2, params: IcpParams, kernel) -> dict:
+    """The ICP of :func:`align` written plainly (one cKDTree-semantics query per association, the rotation
+    Jacobian about the source origin built per point, ``numpy.linalg.solve``): the slow, readable twin that the
+    vectorized implementation must reproduce."""
+    usable = target.usable(params.min_normal_quality)
+    rho2 = np.sum(src * src, axis=1)
+    rho_rms, rho_max = math.sqrt(rho2.mean()), math.sqrt(rho2.max())
+    sp2, sb2 = params.sigma_point_m**2, params.sigma_bearing_rad**2
+    var_src = sp2 + sb2 * rho2
+    theta, t = T_init.theta, np.array([T_init.x, T_init.y])
+    converged, it, moved, last_gate = False, 0, math.inf, -1.0
+    for it in range(1, params.max_iterations + 1):
+        gate = max(params.min_correspondence_m, params.max_correspondence_m * params.shrink ** (it - 1))
+        q = src @ np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]]).T + t
+        if gate != last_gate or moved > params.reassociate_m:
+            _, j = target.tree.query(q, k=1, distance_upper_bound=gate)
+            ok = usable[j]
+            if np.count_nonzero(ok) < 3:
+                break
+            w_pair = ok * (2.0 * sp2 / (var_src + sp2 + sb2 * target.range2_ext[j]))
+            n, c = target.n_ext[j], target.c_ext[j]
+            moved, last_gate = 0.0, gate
+        r = np.sum(n * q, axis=1) - c
+        J = np.column_stack([n, n[:, 1] * (q[:, 0] - t[0]) - n[:, 0] * (q[:, 1] - t[1])])
+        w = kernel.weight(r) * w_pair
+        H = (J.T * w) @ J + 1e-9 * np.eye(3)
+        if not abs(np.linalg.det(H)) > 1e-300:
+            break
+        dx, dy, dth = -np.linalg.solve(H, (J.T * w) @ r)
+        step = math.hypot(dx, dy) + abs(dth) * rho_rms
+        if step > gate:
+            dx, dy, dth = dx * gate / step, dy * gate / step, dth * gate / step
+        theta, t = theta + dth, t + [dx, dy]
+        moved += math.hypot(dx, dy) + abs(dth) * rho_max
+        if gate <= params.min_correspondence_m and math.hypot(dx, dy) < params.convergence_translation_m:
+            if abs(dth) < params.convergence_rotation_rad:
+                converged = True
+                break
+    T = Pose2(float(t[0]), float(t[1]), float(theta))
+    q = T.transform_points(src)
+    d_src, j = target.tree.query(q, k=1)
+    sel = usable[np.where(d_src < params.min_correspondence_m, j, len(target))]
+    jj, qi = j[sel], q[sel]
+    n = target.n_ext[jj]
+    r = np.sum(n * qi, axis=1) - target.c_ext[jj]
+    J = np.column_stack([n, n[:, 1] * (qi[:, 0] - t[0]) - n[:, 0] * (qi[:, 1] - t[1])])
+    var = var_src[sel] + sp2 + sb2 * target.range2_ext[jj]
+    w = kernel.weight(r) * (2.0 * sp2 / var)
+    d_tgt, _ = cKDTree(q).query(target.points_m, k=1)
+    cap = params.chamfer_cap_m
+    rin = r[np.abs(r) < params.fitness_distance_m]
+    return {
+        "pose": T.as_array(),
+        "iterations": it,
+        "converged": converged and len(r) >= 3,
+        "fitness": np.mean(d_src < params.fitness_distance_m),
+        "rmse_m": math.sqrt(np.mean(rin**2)) if len(rin) else math.inf,
+        "chamfer_m": 0.5 * (np.minimum(d_src, cap).mean() + np.minimum(d_tgt, cap).mean()),
+        "hessian": (J.T * w) @ J,
+        "jacobians": J,
+        "residuals_m": r,
+        "weights": w,
+        "variances_m2": var,
+    }
+
+
+def _assert_same(res, ref: dict) -> None:
+    np.testing.assert_allclose(res.T_target_source.as_array(), ref["pose"], rtol=0, atol=1e-9)
+    assert res.iterations == ref["iterations"] and res.converged == ref["converged"]
+    assert res.fitness == pytest.approx(ref["fitness"], abs=1e-12)
+    assert res.chamfer_m == pytest.approx(ref["chamfer_m"], abs=1e-9)
+    assert res.rmse_m == pytest.approx(ref["rmse_m"], rel=1e-7)
+    for key in ("jacobians", "residuals_m", "weights", "variances_m2"):
+        np.testing.assert_allclose(getattr(res, key), ref[key], rtol=1e-7, atol=1e-9, err_msg=key)
+    np.testing.assert_allclose(res.hessian, ref["hessian"], rtol=1e-7, atol=1e-6)
+
+
+def _random_scene(rng: np.random.Generator, n: int) -> np.ndarray:
+    """Random walls (segments) around the origin, ``n`` noisy points in total."""
+    a = rng.uniform(-math.pi, math.pi, 8)
+    ends = np.column_stack([np.cos(a), np.sin(a)]) * rng.uniform(1.5, 8.0, (8, 1))
+    t = rng.uniform(0.0, 1.0, n)
+    seg = rng.integers(0, 8, n)
+    p0, p1 = ends[seg], ends[(seg + 1) % 8]
+    return p0 + t[:, None] * (p1 - p0) + rng.normal(0.0, 0.01, (n, 2))
+
+
+PARAMS = {
+    "library default": IcpParams(),
+    "step default (reassociation after 1 cm)": IcpParams(
+        min_correspondence_m=0.1, convergence_translation_m=1e-3, convergence_rotation_rad=3e-4, reassociate_m=0.01
+    ),
+    "range-dependent noise": IcpParams(sigma_bearing_rad=0.003, max_correspondence_m=0.4),
+}
+KERNELS = {"cauchy": Cauchy(0.05), "huber": Huber(0.03), "tukey": Tukey(0.1), "l2": L2()}
+
+
+@pytest.mark.parametrize("params", list(PARAMS.values()), ids=list(PARAMS))
+@pytest.mark.parametrize("kernel", list(KERNELS.values()), ids=list(KERNELS))
+def test_align_reproduces_the_reference_implementation_on_random_scenes(params: IcpParams, kernel) -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(6):
+        tgt_pts = _random_scene(rng, int(rng.integers(60, 400)))
+        truth = Pose2(*rng.normal(0.0, [0.5, 0.5, 0.2]))
+        src = truth.inverse().transform_points(tgt_pts[rng.permutation(len(tgt_pts))[:150]])
+        src = src + rng.normal(0.0, 0.01, src.shape)
+        seed = Pose2(truth.x + rng.normal(0, 0.1), truth.y + rng.normal(0, 0.1), truth.theta + rng.normal(0, 0.05))
+        target = prepare_target(tgt_pts, params)
+        _assert_same(align(target, src, seed, params, kernel), _reference_align(target, src, seed, params, kernel))
+
+
+def test_align_reproduces_the_reference_implementation_on_degenerate_scenes(room_points, corridor_points) -> None:
+    rng = np.random.default_rng(5)
+    line = np.column_stack([np.linspace(-3, 3, 200), np.full(200, 2.0)])  # one wall: collinear points
+    twice = np.vstack([room_points[::3], room_points[::3]])  # every point duplicated
+    for pts in (line, corridor_points[::5], twice):
+        target = prepare_target(pts)
+        src = Pose2(0.05, -0.02, 0.01).inverse().transform_points(pts[::2]) + rng.normal(0.0, 0.003, pts[::2].shape)
+        res = align(target, src, Pose2(), IcpParams(), Cauchy(0.05))
+        _assert_same(res, _reference_align(target, src, Pose2(), IcpParams(), Cauchy(0.05)))
+
+
+def test_align_rejects_non_finite_points(room_points: np.ndarray) -> None:
+    target = prepare_target(room_points)
+    src = room_points[::4].copy()
+    src[3, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        align(target, src, Pose2())
+    with pytest.raises(InputError, match="NaN"):
+        prepare_target(src)
+
+
+@pytest.fixture(scope="module")
+def intel_pairs(shared_data) -> list[tuple[np.ndarray, np.ndarray, Pose2]]:
+    """(reference scan, query scan, odometry seed) of every 25th Intel relation whose robot moved < 5 m."""
+    from factorloc.datasets.rosbag import read_laser_log
+    from factorloc.evaluation.relations import read_relations
+
+    laser = shared_data / "laser"
+    log = read_laser_log(laser / "intel.sort.bag")
+    rel = read_relations(laser / "intel.relations").subset(25)
+    out = []
+    for t1, t2 in zip(rel.t1_s, rel.t2_s, strict=True):
+        if log.odometry.distance_between(t1, t2)[0] < 5.0:
+            out.append((log.scans.at(t1, 2e-3).points_m, log.scans.at(t2, 2e-3).points_m, log.odometry.between(t1, t2)))
+    assert len(out) > 20
+    return out
+
+
+def test_align_reproduces_the_reference_implementation_on_real_laser_scans(intel_pairs) -> None:
+    params = PARAMS["step default (reassociation after 1 cm)"]
+    for ref_pts, qry_pts, seed in intel_pairs:
+        target = prepare_target(ref_pts, params)
+        _assert_same(
+            align(target, qry_pts, seed, params, Cauchy(0.05)), _reference_align(target, qry_pts, seed, params, Cauchy(0.05))
+        )

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
 from factorloc.registration.scan2d import (
@@ -76,3 +77,69 @@ def test_polar_profile_fills_narrow_gaps_only() -> None:
     bins = np.floor((np.array([0.0, 2.0]) + math.pi) / (2 * math.pi) * 720).astype(int)
     assert prof[bins[0]] == pytest.approx(2.0, abs=0.01)  # doorway: free up to the nearer jamb
     assert np.isnan(prof[bins[1]])  # outside the field of view: unknown
+
+
+def _reference_normals(pts: np.ndarray, k: int = 7, max_radius_m: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """PCA line normals written plainly (cKDTree, ``numpy.linalg.eigh`` per point): what the vectorized closed form
+    of :func:`estimate_normals_2d` must reproduce; and where the k nearest neighbours are ambiguous (a tie at the
+    k-th distance: two exact searches may keep either point)."""
+    n = len(pts)
+    d, idx = cKDTree(pts).query(pts, k=min(k, n) + 1, distance_upper_bound=max_radius_m)
+    d, idx = d.reshape(n, -1), idx.reshape(n, -1)
+    tie = np.zeros(n, dtype=bool) if k >= n else (d[:, k - 1] == d[:, k]) & np.isfinite(d[:, k])
+    d, idx = d[:, : min(k, n)], idx[:, : min(k, n)]
+    normals, quality = np.empty((n, 2)), np.zeros(n)
+    for i in range(n):
+        nb = pts[idx[i][d[i] < np.inf]]
+        to_sensor = -pts[i] / max(np.hypot(*pts[i]), 1e-12)
+        if len(nb) < 3:
+            normals[i] = to_sensor
+            continue
+        lam, vec = np.linalg.eigh(np.cov(nb.T, bias=True) * len(nb))
+        normals[i] = vec[:, 0] if vec[:, 0] @ to_sensor >= 0.0 else -vec[:, 0]
+        quality[i] = 1.0 - lam[0] / lam[1] if lam[1] > 0.0 else 0.0
+    return normals, np.clip(quality, 0.0, 1.0), tie
+
+
+def _assert_same_normals(pts: np.ndarray) -> None:
+    n, q = estimate_normals_2d(pts)
+    n0, q0, tie = _reference_normals(pts)
+    assert np.mean(tie) < 0.05
+    np.testing.assert_allclose(q[~tie], q0[~tie], atol=1e-9)
+    line = (q0 > 1e-6) & ~tie  # the direction of an isotropic neighbourhood is arbitrary
+    np.testing.assert_allclose(n[line], n0[line], atol=1e-7)
+    np.testing.assert_allclose(np.hypot(n[:, 0], n[:, 1]), 1.0, atol=1e-12)
+    assert np.all(np.einsum("ij,ij->i", n, -pts) >= -1e-12)  # every normal faces the sensor at the origin
+
+
+def test_normals_reproduce_a_per_point_eigen_decomposition_on_random_scenes() -> None:
+    rng = np.random.default_rng(2)
+    for size in (3, 5, 40, 400):
+        _assert_same_normals(rng.uniform(-4.0, 4.0, (size, 2)))
+        a = rng.uniform(-math.pi, math.pi, size)
+        _assert_same_normals(np.column_stack([np.cos(a), np.sin(a)]) * rng.uniform(1, 6, (size, 1)))
+
+
+def test_normals_of_degenerate_neighbourhoods() -> None:
+    pts = np.array([[1.0, 1.0]] * 5 + [[2.0, 0.0], [2.0, 0.1], [2.0, 0.2], [5.0, 5.0]])
+    n, q = estimate_normals_2d(pts)
+    _assert_same_normals(pts)
+    assert np.all(q[:5] == 0.0)  # five copies of one point: no line
+    assert q[8] == 0.0 and np.allclose(n[8], -pts[8] / np.hypot(*pts[8]))  # isolated: faces the sensor
+    collinear = np.column_stack([np.linspace(0.5, 3.0, 30), np.linspace(0.5, 3.0, 30)])  # a line through the sensor
+    n, q = estimate_normals_2d(collinear)
+    assert q.min() > 0.999
+    np.testing.assert_allclose(np.abs(n @ [1.0, 1.0]), 0.0, atol=1e-9)
+
+
+def test_normals_reject_non_finite_points() -> None:
+    with pytest.raises(InputError, match="NaN"):
+        estimate_normals_2d(np.array([[1.0, 0.0], [np.inf, 1.0], [2.0, 2.0]]))
+
+
+def test_normals_reproduce_a_per_point_eigen_decomposition_on_real_laser_scans(shared_data) -> None:
+    from factorloc.datasets.rosbag import read_scans
+
+    track = read_scans(shared_data / "laser" / "aces.sort.bag")
+    for scan in track.scans[::400]:
+        _assert_same_normals(scan.points_m)
