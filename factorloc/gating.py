@@ -29,7 +29,6 @@ from functools import lru_cache
 import numpy as np
 from scipy.stats import chi2
 
-from factorloc.fusion.base import heading_anchor, unwrap_values
 from factorloc.fusion.product import ProductFusion
 from factorloc.geometry import wrap_angle
 from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
@@ -108,37 +107,65 @@ class Verdict:
         return self.estimate.marginal(self.accepted)
 
 
-def _gate_group(parts: list[Estimate], probability: float) -> tuple[dict[int, str], dict[int, float]]:
+def _inv(m: tuple[float, ...]) -> tuple[float, ...]:
+    """Inverse of a symmetric 1×1 ``(a,)`` or 2×2 ``(a, b, d)`` (= [[a, b], [b, d]]) matrix, same packing."""
+    if len(m) == 1:
+        return (1.0 / m[0],)
+    a, b, d = m
+    det = a * d - b * b
+    return (d / det, -b / det, a / det)
+
+
+def _gate_group(
+    values: list[tuple[float, ...]], covariances: list[tuple[float, ...]], is_heading: bool, probability: float
+) -> tuple[dict[int, str], dict[int, float]]:
     """Worst-first rejection inside one group of estimates of the same components.
 
-    Leave-one-out products are computed in information form: the total
-    information and information-weighted sum of the active estimates, minus
-    the estimate's own (headings unwrapped around the most certain one).
+    ``values`` are k-tuples (k = 1: θ; k = 2: x, y) and ``covariances`` their
+    packed symmetric covariances (see :func:`_inv`). Leave-one-out products are
+    computed in information form: the total information and
+    information-weighted sum of the active estimates, minus the estimate's
+    own (headings unwrapped around the most certain one). Scalar arithmetic:
+    at most a handful of 1×1 and 2×2 systems per query, where numpy's
+    per-call overhead would dominate.
     """
     rejected: dict[int, str] = {}
     d2s: dict[int, float] = {}
-    if len(parts) < 2:
+    n = len(values)
+    if n < 2:
         return rejected, d2s
-    k = len(parts[0].components)
+    k = len(values[0])
     threshold = chi2_threshold(probability, k)
-    is_heading = parts[0].components == HEADING
-    anchor = heading_anchor(parts) if is_heading else 0.0
-    z = np.array([unwrap_values(p, anchor) for p in parts])  # n×k
-    lam = np.array([np.linalg.inv(p.covariance) for p in parts])  # n×k×k
-    lam_z = np.einsum("nij,nj->ni", lam, z)
-    active = list(range(len(parts)))
+    if is_heading:
+        anchor = values[min(range(n), key=lambda i: covariances[i][0])][0]  # first of the most certain
+        values = [(anchor + wrap_angle(v[0] - anchor),) for v in values]
+    lam = [_inv(c) for c in covariances]
+    if k == 1:
+        lam_z = [(lm[0] * z[0],) for lm, z in zip(lam, values, strict=True)]
+    else:
+        lam_z = [(lm[0] * z[0] + lm[1] * z[1], lm[1] * z[0] + lm[2] * z[1]) for lm, z in zip(lam, values, strict=True)]
+    active = list(range(n))
     round_d2: dict[int, float] = {}
     while len(active) >= 2:
-        total_lam = lam[active].sum(axis=0)
-        total_b = lam_z[active].sum(axis=0)
+        total_lam = [sum(lam[i][j] for i in active) for j in range(len(lam[0]))]
+        total_b = [sum(lam_z[i][j] for i in active) for j in range(k)]
         worst, worst_d2 = None, threshold
         round_d2 = {}
         for i in active:
-            cov_o = np.linalg.inv(total_lam - lam[i])
-            err = z[i] - cov_o @ (total_b - lam_z[i])
-            if is_heading:
-                err = np.array([wrap_angle(err[0])])
-            d2 = float(err @ np.linalg.solve(parts[i].covariance + cov_o, err))
+            cov_o = _inv(tuple(t - own for t, own in zip(total_lam, lam[i], strict=True)))
+            b = [t - own for t, own in zip(total_b, lam_z[i], strict=True)]
+            c = covariances[i]
+            if k == 1:
+                err = values[i][0] - cov_o[0] * b[0]
+                if is_heading:
+                    err = wrap_angle(err)
+                d2 = err * err / (c[0] + cov_o[0])
+            else:
+                ex = values[i][0] - (cov_o[0] * b[0] + cov_o[1] * b[1])
+                ey = values[i][1] - (cov_o[1] * b[0] + cov_o[2] * b[1])
+                sa, sb, sd = _inv((c[0] + cov_o[0], c[1] + cov_o[1], c[2] + cov_o[2]))
+                d2 = ex * (sa * ex + sb * ey) + ey * (sb * ex + sd * ey)
+            d2 = float(d2)
             round_d2[i] = d2
             if d2 > worst_d2 * (1.0 + 1e-9):  # strictly worse: ties keep the earliest
                 worst, worst_d2 = i, d2
@@ -166,9 +193,19 @@ def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999) 
     reasons: list[list[str]] = [[] for _ in estimates]
     d2_all: list[dict[str, float]] = [{} for _ in estimates]
     for group, comps in GROUPS.items():
-        members = [i for i, e in enumerate(estimates) if e.measures(comps[0])]
-        parts = [estimates[i] if estimates[i].components == comps else estimates[i].marginal(comps) for i in members]
-        rejected, d2s = _gate_group(parts, probability)
+        is_heading = comps == HEADING
+        # components are (θ), (x, y) or (x, y, θ): position = the first two, heading = the last
+        members = [i for i, e in enumerate(estimates) if (len(e.values) != 2 if is_heading else len(e.values) >= 2)]
+        if is_heading:
+            vals = [(float(estimates[i].values[-1]),) for i in members]
+            covs = [(float(estimates[i].covariance[-1, -1]),) for i in members]
+        else:
+            vals = [(float(estimates[i].values[0]), float(estimates[i].values[1])) for i in members]
+            covs = [
+                (float(c[0, 0]), 0.5 * float(c[0, 1] + c[1, 0]), float(c[1, 1]))
+                for c in (estimates[i].covariance for i in members)
+            ]
+        rejected, d2s = _gate_group(vals, covs, is_heading, probability)
         for local, i in enumerate(members):
             if local in d2s:
                 d2_all[i][group] = d2s[local]

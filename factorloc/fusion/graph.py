@@ -27,12 +27,13 @@ with infinite variance.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import gtsam
 import numpy as np
 
-from factorloc.fusion.base import Fused, check_estimates, heading_anchor, undetermined_components
+from factorloc.fusion.base import Fused, check_estimates, undetermined_components
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate
 
@@ -42,23 +43,25 @@ POSE_KEY = 0
 def _noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
     """The one place noise models are built: diagonal → Diagonal.Sigmas, else Gaussian.Covariance."""
     cov = np.asarray(covariance, dtype=np.float64)
-    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
-        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov)))
+    diag = np.diagonal(cov)
+    if not np.any(cov - np.diagflat(diag)):
+        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(diag))
     return gtsam.noiseModel.Gaussian.Covariance(cov)
 
 
 def factors_for(estimate: Estimate, key: int = POSE_KEY) -> list[gtsam.NonlinearFactor]:
     """The unary factor(s) that represent ``estimate`` on pose ``key``."""
     v, cov = estimate.values, estimate.covariance
-    if estimate.kind == "heading":
+    k = len(v)  # the components are (θ), (x, y) or (x, y, θ): see Estimate
+    if k == 1:
         return [gtsam.PoseRotationPrior2D(key, gtsam.Rot2(float(v[0])), _noise(cov))]
-    if estimate.kind == "position":
-        return [gtsam.PoseTranslationPrior2D(key, np.array(v[:2]), _noise(cov))]
-    if estimate.has_cross_covariance:
+    if k == 2:
+        return [gtsam.PoseTranslationPrior2D(key, v[:2].copy(), _noise(cov))]
+    if cov[0, 2] != 0.0 or cov[1, 2] != 0.0:  # position and heading coupled: one joint prior, body frame
         body_cov = rotate_covariance(cov, -float(v[2]))
-        return [gtsam.PriorFactorPose2(key, gtsam.Pose2(*map(float, v)), _noise(body_cov))]
+        return [gtsam.PriorFactorPose2(key, gtsam.Pose2(float(v[0]), float(v[1]), float(v[2])), _noise(body_cov))]
     return [
-        gtsam.PoseTranslationPrior2D(key, np.array(v[:2]), _noise(cov[:2, :2])),
+        gtsam.PoseTranslationPrior2D(key, v[:2].copy(), _noise(cov[:2, :2])),
         gtsam.PoseRotationPrior2D(key, gtsam.Rot2(float(v[2])), _noise(cov[2:, 2:])),
     ]
 
@@ -148,11 +151,15 @@ def _body_covariance(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) ->
 
 
 def _initial_pose(estimates: Sequence[Estimate]) -> Pose2:
-    """Start at the most certain position and the most certain heading."""
-    best_pos, best_det = (0.0, 0.0), np.inf
+    """Start at the most certain position (smallest det of its 2×2 covariance) and the most certain heading."""
+    best_pos, best_det = (0.0, 0.0), math.inf
+    best_theta, best_var = 0.0, math.inf
     for e in estimates:
-        if e.measures(Component.X):
-            det = float(np.linalg.det(e.covariance[:2, :2]))
+        v, c = e.values, e.covariance
+        if len(v) >= 2:
+            det = float(c[0, 0] * c[1, 1] - c[0, 1] * c[1, 0])
             if det < best_det:
-                best_pos, best_det = (e.value(Component.X), e.value(Component.Y)), det
-    return Pose2(best_pos[0], best_pos[1], heading_anchor(estimates))
+                best_pos, best_det = (float(v[0]), float(v[1])), det
+        if len(v) != 2 and c[-1, -1] < best_var:  # same choice as fusion.base.heading_anchor
+            best_theta, best_var = float(v[-1]), float(c[-1, -1])
+    return Pose2(best_pos[0], best_pos[1], best_theta)
