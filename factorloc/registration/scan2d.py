@@ -186,15 +186,14 @@ def estimate_normals_2d(
     quality = lmin / np.maximum(lmax, 1e-300)
     np.subtract(1.0, quality, out=quality)
     quality *= lmax > 0.0  # all neighbours at one spot: no line
-    rng = np.hypot(x, y)
-    to_sensor = pts / -np.maximum(rng, 1e-12)[:, None]
+    to_sensor = pts / -np.maximum(np.hypot(x, y), 1e-12)[:, None]
     poor = cnt < 3.0
-    if poor.any():
-        normals[poor] = to_sensor[poor]
-        quality[poor] = 0.0
+    np.copyto(normals, to_sensor, where=poor[:, None])
+    quality[poor] = 0.0
     # face the sensor
     normals *= np.where(np.einsum("ij,ij->i", normals, to_sensor) < 0.0, -1.0, 1.0)[:, None]
-    np.clip(quality, 0.0, 1.0, out=quality)
+    np.maximum(quality, 0.0, out=quality)  # rounding: λmin may come out slightly negative
+    np.minimum(quality, 1.0, out=quality)
     return normals, quality
 
 
@@ -212,23 +211,31 @@ def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0
     """
     pts = np.asarray(points_m, dtype=np.float64)
     prof = np.full(n_bins, np.inf)
-    if len(pts):
-        b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64) % n_bins
-        np.minimum.at(prof, b, np.hypot(pts[:, 0], pts[:, 1]))
-    empty = ~np.isfinite(prof)
-    if gap_free_m > 0.0 and empty.any() and not empty.all():
-        # for every bin, the nearest non-empty bin before and after it (circularly, vectorized)
-        idx = np.arange(3 * n_bins)
-        seen = ~empty
-        full = np.concatenate((seen, seen, seen))
-        prev = np.maximum.accumulate(np.where(full, idx, -1))[n_bins : 2 * n_bins]
-        nxt = np.minimum.accumulate(np.where(full, idx, 3 * n_bins)[::-1])[::-1][n_bins : 2 * n_bins]
-        gap = nxt - prev - 1
-        fill = empty & (gap <= int(max_gap_rad / (2 * np.pi) * n_bins))
-        bound = np.minimum(prof[prev % n_bins], prof[nxt % n_bins])
-        prof = np.where(fill, np.minimum(bound, gap_free_m), prof)
-    prof[~np.isfinite(prof)] = np.nan
+    if len(pts) == 0:
+        return np.full(n_bins, np.nan)
+    np.minimum.at(prof, _bearing_bins(pts, n_bins), np.hypot(pts[:, 0], pts[:, 1]))
+    if gap_free_m > 0.0:
+        occ = np.flatnonzero(prof < np.inf)  # the bins with a return, increasing
+        if 0 < len(occ) < n_bins:
+            # for every bin, the nearest bin with a return before and after it (circularly)
+            pos = np.searchsorted(occ, np.arange(n_bins))
+            prev = occ.take(pos - 1)  # pos 0: the last one (wraps)
+            nxt = occ.take(pos, mode="wrap")  # pos = len(occ): the first one
+            gap = nxt - prev - 1
+            gap[gap < 0] += n_bins
+            fill = (gap <= int(max_gap_rad / (2 * np.pi) * n_bins)) & (prof == np.inf)
+            bound = np.minimum(prof.take(prev), prof.take(nxt))
+            np.minimum(bound, gap_free_m, out=bound)
+            np.copyto(prof, bound, where=fill)
+    prof[prof == np.inf] = np.nan
     return prof
+
+
+def _bearing_bins(pts: np.ndarray, n_bins: int) -> np.ndarray:
+    """Bin of each point's bearing: ``floor((atan2(y, x) + π) / 2π · n) mod n``."""
+    b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64)
+    b[b >= n_bins] -= n_bins  # bearing +π: the bin of −π
+    return b
 
 
 def free_space_violation(
@@ -244,10 +251,8 @@ def free_space_violation(
     pts = np.asarray(points_m, dtype=np.float64)
     if len(pts) == 0:
         return 0.0
-    n = len(profile_m)
-    b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n).astype(np.int64) % n
-    free = profile_m[b]
-    rho = np.hypot(pts[:, 0], pts[:, 1])
-    with np.errstate(invalid="ignore"):
-        bad = rho < free - np.maximum(margin_m, margin_ratio * free)
-    return float(np.count_nonzero(bad & np.isfinite(free))) / len(pts)
+    prof = np.asarray(profile_m, dtype=np.float64)
+    free = prof.take(_bearing_bins(pts, len(prof)))
+    # a bin without a return (NaN) never compares true
+    bad = np.hypot(pts[:, 0], pts[:, 1]) < free - np.maximum(margin_m, margin_ratio * free)
+    return float(np.count_nonzero(bad)) / len(pts)

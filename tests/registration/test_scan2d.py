@@ -143,3 +143,47 @@ def test_normals_reproduce_a_per_point_eigen_decomposition_on_real_laser_scans(s
     track = read_scans(shared_data / "laser" / "aces.sort.bag")
     for scan in track.scans[::400]:
         _assert_same_normals(scan.points_m)
+
+
+def _reference_profile(pts: np.ndarray, n_bins: int = 720, gap_free_m: float = 0.0, max_gap_rad: float = 0.35) -> np.ndarray:
+    """The free-range profile bin by bin (loops): what the vectorized :func:`polar_profile` must reproduce."""
+    prof = np.full(n_bins, np.inf)
+    for x, y in pts:
+        b = int(np.floor((math.atan2(y, x) + math.pi) / (2 * math.pi) * n_bins)) % n_bins
+        prof[b] = min(prof[b], np.hypot(x, y))
+    seen = [k for k in range(n_bins) if np.isfinite(prof[k])]
+    out = prof.copy()
+    if gap_free_m > 0.0 and 0 < len(seen) < n_bins:
+        for k in range(n_bins):
+            if np.isfinite(prof[k]):
+                continue
+            prev = max((s for s in seen if s < k), default=seen[-1] - n_bins)
+            nxt = min((s for s in seen if s > k), default=seen[0] + n_bins)
+            if nxt - prev - 1 <= int(max_gap_rad / (2 * math.pi) * n_bins):
+                out[k] = min(prof[prev % n_bins], prof[nxt % n_bins], gap_free_m)
+    out[~np.isfinite(out)] = np.nan
+    return out
+
+
+def _reference_violation(prof: np.ndarray, pts: np.ndarray, margin_m: float = 0.15, margin_ratio: float = 0.05) -> float:
+    bad = 0
+    for x, y in pts:
+        free = prof[int(np.floor((math.atan2(y, x) + math.pi) / (2 * math.pi) * len(prof))) % len(prof)]
+        bad += bool(np.isfinite(free) and np.hypot(x, y) < free - max(margin_m, margin_ratio * free))
+    return bad / len(pts)
+
+
+def test_polar_profile_and_violation_reproduce_a_per_point_loop() -> None:
+    rng = np.random.default_rng(8)
+    a = rng.uniform(-math.pi, math.pi, 150)
+    room = np.column_stack([np.cos(a), np.sin(a)]) * rng.uniform(1.0, 5.0, (150, 1))
+    half = room[room[:, 0] > 0.0]  # a 180° field of view
+    edge = np.array([[-2.0, 0.0], [-2.0, -1e-18], [3.0, 0.0]])  # bearings +π, −π (the same bin) and 0
+    for pts in (room, half, half[:1], edge, room[:2]):
+        for gap in (0.0, 2.0):
+            prof = polar_profile(pts, gap_free_m=gap)
+            np.testing.assert_array_equal(prof, _reference_profile(pts, gap_free_m=gap))
+            probe = pts * rng.uniform(0.3, 1.2, (len(pts), 1))
+            assert free_space_violation(prof, probe) == _reference_violation(prof, probe)
+    assert np.all(np.isnan(polar_profile(np.zeros((0, 2)), gap_free_m=2.0)))
+    assert free_space_violation(np.full(720, np.nan), room) == 0.0
