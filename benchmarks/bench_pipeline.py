@@ -73,6 +73,15 @@ def main() -> None:
             f"{name:12s} {s['reliable_rate']:8.2f} {s['fused_rate']:6.2f} {s['false_positive_count']:6d} "
             f"{s['confidently_wrong_blame']:6d} {_fmt(s['latency_median_ms']):>7s} {_fmt(s['latency_p95_ms']):>7s}"
         )
+    print("\n# each step's own NEES over its reliable estimates (calibrated: position mean 2, median 1.39; heading 1, 0.45)")
+    print(f"{'step':12s} {'scope':9s} {'pos mean':>9s} {'pos med':>8s} {'head mean':>9s} {'head med':>8s}")
+    for name in out["steps"]:
+        for scope, block in (("all", out), ("no fault", clean)):
+            s = block.get("steps", {}).get(name, {})
+            print(
+                f"{name:12s} {scope:9s} {_fmt(s.get('position_nees_mean')):>9s} {_fmt(s.get('position_nees_median')):>8s}"
+                f" {_fmt(s.get('heading_nees_mean')):>9s} {_fmt(s.get('heading_nees_median')):>8s}"
+            )
 
     print("\n# results that are confidently wrong, or whose heading is off by > 3σ")
     err, cov = report.errors, report.covariances

@@ -701,6 +701,20 @@ class EvaluationReport:
             pos = metrics.summarize(metrics.position_error_m(err))
             head = metrics.summarize(metrics.heading_error_rad(err)).scaled(180.0 / math.pi)
             normalized = metrics.normalized_nees_mean(e, k)
+            # each part on its own: position (2 dof, calibrated mean 2) and heading (1 dof, calibrated mean 1)
+            has_pos = np.isfinite(covs[:, 0, 0]) & np.isfinite(err[:, 0])
+            has_head = np.isfinite(covs[:, 2, 2]) & np.isfinite(err[:, 2])
+            if has_pos.any():
+                ep = err[has_pos, :2]
+                pos_nees = np.einsum("ni,ni->n", ep, np.linalg.solve(covs[has_pos][:, :2, :2], ep[..., None])[..., 0])
+                pos_nees_mean, pos_nees_median = float(pos_nees.mean()), float(np.median(pos_nees))
+            else:
+                pos_nees_mean = pos_nees_median = math.nan
+            if has_head.any():
+                head_nees = err[has_head, 2] ** 2 / covs[has_head, 2, 2]
+                head_nees_mean, head_nees_median = float(head_nees.mean()), float(np.median(head_nees))
+            else:
+                head_nees_mean = head_nees_median = math.nan
             n_wrong = int(np.count_nonzero(wrong))
             # confidently-wrong fused results to which this step contributed a false positive
             blame = sum(
@@ -711,6 +725,7 @@ class EvaluationReport:
         else:
             pos = head = metrics.summarize(np.zeros(0))
             normalized, n_wrong, blame = math.nan, 0, 0
+            pos_nees_mean = pos_nees_median = head_nees_mean = head_nees_median = math.nan
         lat = _ms(seconds)
         truth_n = sum(q.truth is not None for q in res)
         return {
@@ -725,6 +740,10 @@ class EvaluationReport:
             "heading_rmse_deg": head.rmse,
             "heading_median_deg": head.median,
             "nees_normalized_mean": normalized,
+            "position_nees_mean": pos_nees_mean,
+            "position_nees_median": pos_nees_median,
+            "heading_nees_mean": head_nees_mean,
+            "heading_nees_median": head_nees_median,
             "false_positive_rate": n_wrong / truth_n if truth_n else math.nan,
             "false_positive_count": n_wrong,
             "confidently_wrong_blame": blame,

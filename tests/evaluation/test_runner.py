@@ -93,6 +93,13 @@ def test_a_calibrated_hierarchy_scores_its_expected_accuracy_and_nees() -> None:
     assert out["queries"] == 300 and out["nees_count"] == 300
     assert out["steps"]["icp"]["reliable_rate"] == 1.0 and out["steps"]["icp"]["fused_rate"] == 1.0
     assert out["steps"]["icp"]["position_rmse_m"] == pytest.approx(math.sqrt(2) * 0.02, rel=0.1)
+    # each step's own NEES, per part: position χ²(2) (mean 2, median 1.386), heading χ²(1) (mean 1, median 0.455)
+    for name in ("odometry", "icp"):
+        st = out["steps"][name]
+        assert st["position_nees_mean"] == pytest.approx(2.0, abs=0.3)
+        assert st["position_nees_median"] == pytest.approx(1.386, abs=0.3)
+        assert st["heading_nees_mean"] == pytest.approx(1.0, abs=0.2)
+        assert st["heading_nees_median"] == pytest.approx(0.455, abs=0.15)
 
 
 def test_overconfident_step_shows_in_nees_and_in_its_own_false_positives() -> None:
@@ -100,6 +107,8 @@ def test_overconfident_step_shows_in_nees_and_in_its_own_false_positives() -> No
     steps = [NoisyPoseStep("icp", truth, [0.01, 0.01, 0.01], 3, error_scale=3.0)]  # errors 3× the claimed σ
     out = evaluate(data, ProductFusion(), steps=steps).to_json_dict()
     assert out["nees_mean"] == pytest.approx(27.0, rel=0.2)
+    assert out["steps"]["icp"]["position_nees_mean"] == pytest.approx(18.0, rel=0.2)
+    assert out["steps"]["icp"]["heading_nees_mean"] == pytest.approx(9.0, rel=0.25)
     assert out["confidently_wrong_rate"] > 0.4
     assert out["steps"]["icp"]["false_positive_rate"] == pytest.approx(out["confidently_wrong_rate"])
     assert out["steps"]["icp"]["confidently_wrong_blame"] == out["confidently_wrong_count"]
