@@ -259,35 +259,36 @@ class IcpResult:
 
 def _linearize(
     target: PreparedScan,
-    usable: np.ndarray,
     q: np.ndarray,
-    j: np.ndarray,
-    t: np.ndarray,
+    jj: np.ndarray,
+    tx: float,
+    ty: float,
     kernel: RobustKernel,
     params: IcpParams,
     var_src: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-    """Jacobians (K×3), residuals (K,), IRLS weights (K,) and pair variances (K,) of the pairs ``q_i ↔ p_{j_i}``.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Jacobians (K×3), residuals (K,), IRLS weights (K,) and pair variances (K,) of the pairs ``q_i ↔ p_{jj_i}``.
 
-    ``j`` holds the KD-tree's nearest target index per source point (M where
-    none lies within the gate). ``var_src`` None: the noise model is the
-    same for every pair (``sigma_bearing_rad = 0``); the variances are then
-    not returned (None) and the weight factor is 1.
+    ``q`` (K×2 or K×3 lifted) are the paired source points in the target
+    frame, ``jj`` their target indices, ``(tx, ty)`` the source origin.
+    ``var_src`` (K,) the source points' noise variances, or None when the
+    noise model is the same for every pair (``sigma_bearing_rad = 0``): the
+    pair variance is then ``2·sigma_point_m²`` and the weight factor 1.
     """
-    src_idx = np.flatnonzero(usable[j])
-    jj = j[src_idx]
-    qi = q[src_idx]
-    n = target.n_ext[jj]
+    n = target.n_ext.take(jj, axis=0)
+    nx, ny = n[:, 0], n[:, 1]
+    qx, qy = q[:, 0], q[:, 1]
     J = np.empty((len(jj), 3))
     J[:, :2] = n
     # r = n·q − n·p ; third Jacobian column nᵀ·perp(q − t) = n_y (q_x − t_x) − n_x (q_y − t_y)
-    r = n[:, 0] * qi[:, 0] + n[:, 1] * qi[:, 1] - target.c_ext[jj]
-    J[:, 2] = n[:, 1] * (qi[:, 0] - t[0]) - n[:, 0] * (qi[:, 1] - t[1])
+    r = nx * qx + ny * qy - target.c_ext.take(jj)
+    J[:, 2] = ny * (qx - tx) - nx * (qy - ty)
     w = kernel.weight(r)
+    sp2 = params.sigma_point_m**2
     if var_src is None:
-        return J, r, w, None
-    var = var_src[src_idx] + params.sigma_point_m**2 + params.sigma_bearing_rad**2 * target.range2_ext[jj]
-    w = w * (2.0 * params.sigma_point_m**2 / var)
+        return J, r, w, np.full(len(jj), sp2 + sp2)
+    var = var_src + sp2 + params.sigma_bearing_rad**2 * target.range2_ext.take(jj)
+    w = w * (2.0 * sp2 / var)
     return J, r, w, var
 
 
@@ -430,18 +431,17 @@ def align(
     q3 = src_h @ A
     cap = params.chamfer_cap_m
     d_src, j = tree.nearest_lifted(q3)
-    j[~(d_src < min_gate)] = m_tgt  # the final linearisation uses the smallest gate
-    t = np.array([tx, ty])
-    J, r, w, var = _linearize(target, usable, q3, j, t, kernel, params, var_src if var_src is not None else np.full(n_src, sp2))
-    H = (J.T * w) @ J if len(r) else np.zeros((3, 3))
+    # the final linearisation: fresh neighbours at the smallest gate
+    sel = np.flatnonzero(usable.take(j) & (d_src < min_gate))
+    J, r, w, var = _linearize(
+        target, q3.take(sel, axis=0), j.take(sel), tx, ty, kernel, params, None if var_src is None else var_src.take(sel)
+    )
+    H = (J.T * w) @ J
     fitness = float(np.count_nonzero(d_src < params.fitness_distance_m)) / n_src
-    if len(r):
-        rin = r[np.abs(r) < params.fitness_distance_m]
-        rmse = math.sqrt(float(np.mean(rin * rin))) if len(rin) else math.inf
-    else:
-        rmse = math.inf
-    d_tgt, _ = KdTree2D(q3[:, :2]).nearest_lifted(target.lifted)
-    chamfer = 0.5 * (float(np.minimum(d_src, cap).mean()) + float(np.minimum(d_tgt, cap).mean()))
+    rin = r[np.abs(r) < params.fitness_distance_m]
+    rmse = math.sqrt(float(rin @ rin) / len(rin)) if len(rin) else math.inf
+    d_tgt, _ = KdTree2D.from_lifted(q3).nearest_lifted(target.lifted)
+    chamfer = 0.5 * (float(np.minimum(d_src, cap).sum()) / n_src + float(np.minimum(d_tgt, cap).sum()) / m_tgt)
     for a in (H, J, r, w, var):
         a.setflags(write=False)
     return IcpResult(

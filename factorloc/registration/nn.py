@@ -79,6 +79,20 @@ class KdTree2D:
         else:
             self._ck = cKDTree(pts)
 
+    @classmethod
+    def from_lifted(cls, lifted: np.ndarray) -> KdTree2D:
+        """A tree on points already lifted (M×3 C-contiguous float64, third column :data:`LIFT_Z`, M ≥ 1), as
+        :func:`lift_2d` makes them: no validation, no copy (the caller must not modify them)."""
+        self = cls.__new__(cls)
+        self.n = len(lifted)
+        self.lifted = lifted
+        self._sg = self._ck = None
+        if _small_gicp is not None:
+            self._sg = _small_gicp.KdTree(lifted, num_threads=1)
+        else:
+            self._ck = cKDTree(lifted[:, :2])
+        return self
+
     def nearest_lifted(self, lifted: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """The ``k`` (≤ M) nearest neighbours of each of N points given lifted (N×3 C-contiguous float64, third
         column :data:`LIFT_Z`): ``(d, idx)``, distances (m, never ``inf``) and int64 indices, (N,) for ``k = 1``
