@@ -298,8 +298,15 @@ def align(
     T_init: Pose2,
     params: IcpParams = IcpParams(),
     kernel: RobustKernel | None = None,
+    max_correspondence_m: float | None = None,
 ) -> IcpResult:
     """Align ``source_points_m`` (N×2, source frame) to ``target`` starting from ``T_init`` (source in target frame).
+
+    ``max_correspondence_m``, when given, replaces ``params.max_correspondence_m``
+    (the first gate; it must be ≥ ``params.min_correspondence_m``): a
+    per-call gate (e.g. from the seed's σ) without building an
+    :class:`IcpParams` per call (``dataclasses.replace`` and its validation
+    cost ~6 µs, as much as a Gauss–Newton iteration).
 
     Returns the refined pose with fitness, RMSE, Chamfer distance and the
     linearisation at the solution. Never fails silently: when fewer than 3
@@ -351,6 +358,12 @@ def align(
     it = 0
     min_gate = params.min_correspondence_m
     max_gate, shrink, reassociate_m = params.max_correspondence_m, params.shrink, params.reassociate_m
+    if max_correspondence_m is not None:
+        if not max_correspondence_m >= min_gate:
+            raise InputError(
+                f"max_correspondence_m must be >= params.min_correspondence_m ({min_gate!r}), got {max_correspondence_m!r}"
+            )
+        max_gate = float(max_correspondence_m)
     conv_t, conv_r = params.convergence_translation_m, params.convergence_rotation_rad
     A = np.zeros((3, 3))  # homogeneous motion: [x, y, 1] @ A = [R (x, y) + t, 1]
     A[2, 2] = 1.0

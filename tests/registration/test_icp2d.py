@@ -225,3 +225,19 @@ def test_align_reproduces_the_reference_implementation_on_real_laser_scans(intel
         _assert_same(
             align(target, qry_pts, seed, params, Cauchy(0.05)), _reference_align(target, qry_pts, seed, params, Cauchy(0.05))
         )
+
+
+def test_align_gate_override_equals_params_with_that_gate(room_points: np.ndarray) -> None:
+    from dataclasses import replace
+
+    target = prepare_target(room_points)
+    src = _query(room_points, np.random.default_rng(3))
+    seed = Pose2(TRUE.x + 0.1, TRUE.y, TRUE.theta + 0.03)
+    a = align(target, src, seed, IcpParams(), max_correspondence_m=0.35)
+    b = align(target, src, seed, replace(IcpParams(), max_correspondence_m=0.35))
+    np.testing.assert_array_equal(a.T_target_source.as_array(), b.T_target_source.as_array())
+    assert a.iterations == b.iterations
+    c = align(target, src, seed, IcpParams())  # the default 1 m gate runs one more shrink step
+    assert c.iterations != a.iterations
+    with pytest.raises(InputError, match="max_correspondence_m"):
+        align(target, src, seed, IcpParams(min_correspondence_m=0.2), max_correspondence_m=0.1)
