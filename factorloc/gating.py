@@ -247,7 +247,7 @@ def seed_misfit(estimate: Estimate) -> str:
     d = estimate.diagnostics
     reason = d.get(SEED_MISFIT)
     if reason:
-        return str(reason)
+        return f"{estimate.step}: {reason}"
     if d.get("seeded") and d.get("used_global_init"):
         n = d.get("n_query_points")
         pts = f"{int(n)} query points" if isinstance(n, (int, float)) and math.isfinite(n) else "the query data"

@@ -82,7 +82,7 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
     assert list(contradicted) == [0] and "360 query points fit nowhere near the seed" in contradicted[0]
     # an explicit reason from the step is used as given
     told = Estimate.heading("icp", 0.0, 0.1, reliable=False, diagnostics={"seed_misfit": "fitness 0.02 at the seed"})
-    assert seed_audit([odo, told]) == {0: "seed contradicted by fitness 0.02 at the seed"}
+    assert seed_audit([odo, told]) == {0: "seed contradicted by icp: fitness 0.02 at the seed"}
 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
