@@ -232,8 +232,9 @@ SEED_MISFIT = "seed_misfit"
 def seed_misfit(estimate: Estimate) -> str:
     """Why ``estimate``'s own data contradict the seed it was given ("" when they do not).
 
-    A step reports it in ``diagnostics["seed_misfit"]`` (a non-empty reason).
-    The ICP step's existing diagnostics are also read: an ICP that was
+    A step reports it in ``diagnostics["seed_misfit"]`` (a non-empty reason;
+    present but empty: the step checked and its data do not contradict the
+    seed). Without that key, the ICP step's diagnostics are read: an ICP that was
     ``seeded`` yet fell back to its global search (``used_global_init``) had a
     seeded alignment that failed for a reason other than degenerate geometry
     (a degenerate seeded fit does not search elsewhere: the scan is the same),
@@ -245,9 +246,9 @@ def seed_misfit(estimate: Estimate) -> str:
     if estimate.reliable:
         return ""
     d = estimate.diagnostics
-    reason = d.get(SEED_MISFIT)
-    if reason:
-        return f"{estimate.step}: {reason}"
+    if SEED_MISFIT in d:  # the step judged it itself ("" or None: its data do not contradict the seed)
+        reason = d[SEED_MISFIT]
+        return f"{estimate.step}: {reason}" if reason else ""
     if d.get("seeded") and d.get("used_global_init"):
         n = d.get("n_query_points")
         pts = f"{int(n)} query points" if isinstance(n, (int, float)) and math.isfinite(n) else "the query data"

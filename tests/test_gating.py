@@ -83,6 +83,12 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
     # an explicit reason from the step is used as given
     told = Estimate.heading("icp", 0.0, 0.1, reliable=False, diagnostics={"seed_misfit": "fitness 0.02 at the seed"})
     assert seed_audit([odo, told]) == {0: "seed contradicted by icp: fitness 0.02 at the seed"}
+    # a step that reports the key empty has checked its seed: its diagnostics are not second-guessed
+    checked = Estimate.pose(
+        "icp", Pose2(1.3, 1.9, 0.3), 0.005, 0.005, 0.003, reliable=False,
+        diagnostics={"seeded": True, "used_global_init": True, "seed_misfit": ""},
+    )  # fmt: skip
+    assert seed_audit([odo, checked]) == {}
 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
