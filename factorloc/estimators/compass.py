@@ -79,6 +79,18 @@ class CompassConfig:
         reference preparation is slower) or ``"orb"``. See ``benchmarks/bench_vision.py``.
     n_features_reference, n_features_query
         Keypoint budgets of the reference panorama and of each query view.
+    query_scale, query_min_detect_px, reference_scale
+        Detection scale of the query views (on the reference grid) and of the reference panorama:
+        each image is area-downsampled by it before detection (:func:`factorloc.vision.keypoints.detect`).
+        SIFT's cost is its first, doubled octave: detecting a query view at half the grid's
+        resolution (its doubled octave then lies at the grid's) is ~5× cheaper, and a view of
+        the grid's 0.18°/px matched at 0.35°/px loses little (sub-pixel keypoints). A view
+        is never reduced below ``query_min_detect_px`` pixels (≈ 90×130; smaller views yield
+        too few keypoints for ``min_inliers``): its scale is ``min(1, max(query_scale,
+        √(query_min_detect_px / pixels)))`` (:func:`detection_scale`).
+    query_sift_sigma
+        SIFT's assumed input blur for the query views (OpenCV's ``sigma``; 1.6 in Lowe's paper):
+        1.2 keeps ~30 % more keypoints on the downscaled views, at no extra cost.
     fast_threshold
         ORB's FAST threshold (lower finds more corners on plain walls).
     ratio
@@ -129,6 +141,9 @@ class CompassConfig:
         inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
         heading's marginal σ (features at several depths and directions separate a turn from a
         sideways shift); ``depth_relative_sigma`` is the relative error of the reference ranges.
+        Only with at least ``resection_min_inliers`` inlier bearings: from fewer (often a dozen on one
+        wall and one or two far ones with coarse ranges) it was confidently wrong (4σ, 3.8°, on the
+        simulated apartment); below it σθ2 keeps the parallax term σ_p / range.
     position_shift_support
         With a position hypothesis the pairs are also voted from a 5×5 grid of positions within ±2σ of
         it; unreliable when one of them gives a mode with ≥ this many times the inliers, more than 3σθ2
@@ -142,6 +157,11 @@ class CompassConfig:
     detector: str = "sift"
     n_features_reference: int = 4000
     n_features_query: int = 1500
+    query_scale: float = 1.0
+    reference_scale: float = 1.0
+    query_sift_sigma: float = 1.6
+    query_octave_layers: int = 3
+    query_min_detect_px: int = 12000
     fast_threshold: int = 10
     ratio: float = 0.8
     inlier_band_rad: float = math.radians(1.5)
@@ -165,6 +185,7 @@ class CompassConfig:
     record_pairs: bool = False
     position_shift_support: float = 1.1
     resection: bool = True
+    resection_min_inliers: int = 20
     depth_relative_sigma: float = 0.1
 
     def __post_init__(self) -> None:
@@ -173,6 +194,13 @@ class CompassConfig:
         for name in ("n_features_reference", "n_features_query", "fast_threshold", "max_effective_inliers"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"compass.{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in ("query_scale", "reference_scale"):
+            if not 0.2 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"compass.{name} must be in [0.2, 1], got {getattr(self, name)!r}")
+        if not self.query_sift_sigma > 0.0:
+            raise ConfigError(f"compass.query_sift_sigma must be > 0, got {self.query_sift_sigma!r}")
+        if self.query_min_detect_px < 0:
+            raise ConfigError(f"compass.query_min_detect_px must be >= 0, got {self.query_min_detect_px!r}")
         if self.min_inliers < 2:
             raise ConfigError(f"compass.min_inliers must be >= 2 (two pairs at least), got {self.min_inliers!r}")
         if not 0.0 < self.ratio <= 1.0:
@@ -215,7 +243,7 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     gray = to_gray(pano.image_bgr)
     problem = texture_problem(gray)
     det = kp.make_detector(config.detector, config.n_features_reference, config.fast_threshold)
-    xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4)) if problem is None else (np.zeros((0, 2)), None)
+    xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4), scale=config.reference_scale) if problem is None else (np.zeros((0, 2)), None)
     if problem is None and (desc is None or len(xy) < config.min_inliers):
         problem = f"reference panorama has only {len(xy)} keypoints"
     az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
@@ -223,6 +251,13 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
     pose = reference.T_world_reference
     return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose)
+
+
+def detection_scale(pixels: int, config: CompassConfig) -> float:
+    """The scale a query view of ``pixels`` pixels is detected at: ``min(1, max(query_scale, √(query_min_detect_px / pixels)))``."""
+    if pixels <= 0:
+        return 1.0
+    return float(min(1.0, max(config.query_scale, math.sqrt(config.query_min_detect_px / pixels))))
 
 
 def query_strips(query: Query, grid: Grid) -> tuple[list[Strip], list[str]]:
@@ -321,11 +356,19 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     strips, dropped = query_strips(query, prepared.grid)
     if not strips:
         return _unreliable(prepared, seed, "no usable query view: " + "; ".join(dropped), **base)
-    det = kp.make_detector(config.detector, config.n_features_query, config.fast_threshold)
+    det = kp.make_detector(
+        config.detector,
+        config.n_features_query,
+        config.fast_threshold,
+        sift_sigma=config.query_sift_sigma,
+        octave_layers=config.query_octave_layers,
+    )
     az_q_list = []
     desc_list = []
+    scales = []
     for s in strips:
-        xy, desc = kp.detect(s.gray, det, wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0)
+        scales.append(detection_scale(s.gray.size, config))
+        xy, desc = kp.detect(s.gray, det, wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0, scale=scales[-1])
         if desc is None or len(xy) == 0:
             continue
         az_q_list.append(np.asarray(s.azimuth_of_column(xy[:, 0]), dtype=np.float64))
@@ -344,6 +387,8 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         world_dir, ranges = prepared.depth.world_headings(az_r, np.zeros_like(az_r), position[0], prepared.elevation_rad)
         az_r = np.asarray(wrap_angle(world_dir - prepared.theta_reference_rad))
     base["parallax_corrected"] = position is not None
+    # a query keypoint is located to about one pixel of the image it was detected in
+    pixel_rad = prepared.grid.rad_per_px / min(scales)
     allowed = None
     if window is not None:
         # a reference point is a candidate for a query point when its vote falls in the window widened by
@@ -353,13 +398,12 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         used = kp.nearest_circular_distance(np.asarray(wrap_angle(az_r - seed[0])), az_q) <= reach
         az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
         ranges = None if ranges is None else ranges[used]
-        votes_all = np.abs(wrap_angle(az_r[None, :] - az_q[:, None] - seed[0]))
-        allowed = votes_all <= reach
+        allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
     candidates = int(len(az_r))
     qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
     outside_votes = np.zeros(0)
     if window is not None:
-        inside = votes_all[qi, ri] <= window + config.inlier_band_rad
+        inside = np.abs(np.asarray(wrap_angle(az_r[ri] - az_q[qi] - seed[0]))) <= window + config.inlier_band_rad
         # best matches beyond the window (within the distinctiveness margin): evidence against the seed
         outside_votes = np.asarray(wrap_angle(az_r[ri[~inside]] - az_q[qi[~inside]]), dtype=np.float64)
         qi, ri = qi[inside], ri[inside]
@@ -399,7 +443,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + sigma_cluster**2 + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     resected = None
-    if position is not None and config.resection and n_in >= config.min_inliers:
+    if position is not None and config.resection and n_in >= max(config.min_inliers, config.resection_min_inliers):
         k = ref_index[ri[inliers]]
         resected = resect(
             prepared.depth,
@@ -408,7 +452,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
             az_q[qi[inliers]],
             Pose2(position[0][0], position[0][1], prepared.theta_reference_rad + theta),
             position[1],
-            prepared.grid.rad_per_px,
+            pixel_rad,
             config,
         )
         if resected is not None:
@@ -429,7 +473,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
                     az_q[qi[again]],
                     Pose2(position[0][0], position[0][1], resected[0]),
                     position[1],
-                    prepared.grid.rad_per_px,
+                    pixel_rad,
                     config,
                 )
                 if second is not None:
@@ -524,17 +568,20 @@ def _position_sensitivity(
     el_ref = prepared.elevation_rad[ref_index]
     pts = prepared.depth.world_points(az_ref, el_ref)
     steps = sigma_p * np.arange(-2.0, 2.5, 1.0)
+    dx, dy = (g.ravel() for g in np.meshgrid(steps, steps, indexing="ij"))
+    off = (dx != 0.0) | (dy != 0.0)
+    dx, dy = dx[off], dy[off]  # 24 grid points, all pairs re-voted at once
+    bearing = np.arctan2(pts[None, :, 1] - (y0 + dy)[:, None], pts[None, :, 0] - (x0 + dx)[:, None])
+    votes = np.asarray(wrap_angle(bearing - prepared.theta_reference_rad - az_query_rad[None, :]))
+    support = kp.support_rows(votes, config.inlier_band_rad)
+    # only grid points whose densest vote beats the hypothesis' inliers can win: refine those (the mode's inliers
+    # after refinement may differ from the raw support by a vote or two)
     best = None
-    for dx in steps:  # 25 grid points, each vectorized over the pairs
-        for dy in steps:
-            if dx == 0.0 and dy == 0.0:
-                continue
-            bearing = np.arctan2(pts[:, 1] - (y0 + dy), pts[:, 0] - (x0 + dx))
-            votes = np.asarray(wrap_angle(bearing - prepared.theta_reference_rad - az_query_rad))
-            theta, inl, _ = kp.vote_consensus(votes, config.inlier_band_rad)
-            n = int(inl.sum())
-            if n > n_inliers and (best is None or n > best[1]):
-                best = (theta, n, float(math.hypot(dx, dy)))
+    for g in np.flatnonzero(support.max(axis=1) > n_inliers):
+        theta, inl, _ = kp.vote_consensus(votes[g], config.inlier_band_rad)
+        n = int(inl.sum())
+        if n > n_inliers and (best is None or n > best[1]):
+            best = (theta, n, float(math.hypot(dx[g], dy[g])))
     return best
 
 
@@ -557,7 +604,10 @@ def resect(
     along the reference ray, seen from the query at angle Δ_i and range r_i), and the
     prior ``(x, y) ~ N(seed, σ_p² I)``. Bearings further than 3σ from the solution are
     dropped once. The measurement information is scaled by
-    ``min(1, max_effective_inliers / n)`` (correlated errors).
+    ``min(1, max_effective_inliers / n)`` (correlated errors). The heading's σ is the larger of
+    the posterior's and the jackknife's (leave-one-bearing-out, linearized at the solution):
+    a few bearings with high leverage (one far point among many on one wall) are otherwise
+    trusted beyond what their scatter supports.
 
     Returns
     -------
@@ -600,7 +650,20 @@ def resect(
             break
     if cov is None or not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
         return None
-    return float(wrap_angle(state[2])), float(math.sqrt(cov[2, 2])), (float(state[0]), float(state[1]))
+    var_theta = float(cov[2, 2])
+    # jackknife: the heading's change when one bearing is left out (one Gauss–Newton step from the solution,
+    # Δ_i = (H − w_i J_iᵀJ_i)⁻¹ J_iᵀ w_i r_i). Few bearings on one wall plus a far one with a bad range give a
+    # confident but wrong solution that the curvature H does not reveal; their influence does.
+    idx = np.flatnonzero(keep)
+    if idx.size >= 3:
+        ji, wi, ri = jac[idx], w[idx], res[idx]
+        h_loo = h[None, :, :] - wi[:, None, None] * ji[:, :, None] * ji[:, None, :]
+        try:
+            delta = np.linalg.solve(h_loo, (ji * (wi * ri)[:, None])[:, :, None])[:, :, 0]
+            var_theta = max(var_theta, (idx.size - 1) / idx.size * float(np.sum(delta[:, 2] ** 2)))
+        except np.linalg.LinAlgError:
+            pass
+    return float(wrap_angle(state[2])), float(math.sqrt(var_theta)), (float(state[0]), float(state[1]))
 
 
 class CompassStep:

@@ -369,6 +369,27 @@ def _lobe_mask(c: np.ndarray, k: int, periodic: bool, min_half: int) -> np.ndarr
     return mask
 
 
+def _reachable_columns(strips: list[Strip], grid: Grid, seed: tuple[float, float] | None, margin_px: int = 8) -> np.ndarray | None:
+    """Boolean mask (W,) of the reference columns any view can cover at a heading within the seeded window.
+
+    A heading θ moves robot azimuth ``a`` to reference azimuth ``a + θ``, i.e. grid column ``c(a) − θ/Δ``
+    (Δ = one column's angle): strip columns ``col0 … col0 + n − 1`` reach ``col0 − (θ̂ + h)/Δ … col0 + n − 1 − (θ̂ − h)/Δ``
+    for θ ∈ [θ̂ − h, θ̂ + h], widened by ``margin_px``. None (every column) without a seed or for a 360° view.
+    """
+    if seed is None or any(s.full_circle for s in strips):
+        return None
+    w = grid.width_px
+    mask = np.zeros(w, dtype=bool)
+    theta, half = seed
+    for s in strips:
+        lo = s.col0 - (theta + half) / grid.rad_per_px - margin_px
+        hi = s.col0 + s.width_px - 1 - (theta - half) / grid.rad_per_px + margin_px
+        if hi - lo + 1 >= w:
+            return None
+        mask[np.mod(np.arange(math.floor(lo), math.ceil(hi) + 1), w)] = True
+    return mask
+
+
 def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses, config: CorrelationConfig) -> Estimate:
     h = hypotheses.heading()
     seed = None
@@ -389,8 +410,11 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     if position is not None:
         # remove the parallax: correlate with the reference re-rendered from the hypothesised position
         p_ref = prepared.depth.T_world_reference.inverse().transform_points(np.array([position[0]]))[0]
-        synth, range_m, magnification = synthesize(prepared.levels[0], prepared.grid, prepared.depth, (p_ref[0], p_ref[1]))
-        prepared = dataclasses.replace(prepared, **_pyramid(synth, prepared.grid, config))
+        synth, range_m, magnification = synthesize(
+            prepared.levels[0], prepared.grid, prepared.depth, (p_ref[0], p_ref[1]), columns=_reachable_columns(strips, prepared.grid, seed)
+        )
+        # only level 0 is correlated after the warp (below): no pyramid of the re-rendered panorama
+        prepared = dataclasses.replace(prepared, levels=(synth,), scales=((1.0, 1.0),))
     base["parallax_corrected"] = position is not None
     offsets = None
     # after the warp the residual scale is near 1: no pyramid (small templates of coarse levels match by chance)

@@ -32,7 +32,8 @@ def synthesize(
     position_xy_m: tuple[float, float],
     *,
     max_depth_jump: float = 0.1,
-) -> tuple[np.ndarray, np.ndarray]:
+    columns: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Warp the grey reference panorama (H×W float32) to a viewpoint at ``position_xy_m`` (reference frame).
 
     Parameters
@@ -47,6 +48,10 @@ def synthesize(
         The hypothesised query position in the *reference robot's* frame (m).
     max_depth_jump
         Relative range change between neighbouring columns treated as a depth edge (not a surface).
+    columns
+        Optional boolean mask (W,) of the output columns to render (the others are left 0): the
+        correlation renders only the columns its seeded window can reach. The per-column
+        geometry (range, magnification) is always computed for all W columns.
 
     Returns
     -------
@@ -98,9 +103,14 @@ def synthesize(
         _, (idx,) = ndimage.distance_transform_edt(tiled, return_indices=True)
         nearest = np.mod(idx[w : 2 * w], w)
         src_col, ratio, r_out = src_col[nearest], ratio[nearest], r_out[nearest]
-    v = np.arange(h, dtype=np.float64)
-    map_y = 0.5 * h + (v[:, None] - 0.5 * h) * ratio[None, :]
-    map_x = np.broadcast_to(src_col[None, :], (h, w))
+    cols = np.arange(w) if columns is None else np.flatnonzero(columns)
+    v = np.arange(h, dtype=np.float32)
+    map_y = np.float32(0.5 * h) + (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
+    map_x = np.ascontiguousarray(np.broadcast_to(src_col[cols].astype(np.float32)[None, :], (h, cols.size)))
     padded = np.concatenate([gray, gray[:, :2]], axis=1)
-    out = cv2.remap(padded, map_x.astype(np.float32), map_y.astype(np.float32), cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    warped = cv2.remap(padded, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if columns is None:
+        return warped, r_out, 1.0 / ratio
+    out = np.zeros_like(gray)
+    out[:, cols] = warped
     return out, r_out, 1.0 / ratio

@@ -41,3 +41,64 @@ def test_nearest_circular_distance_wraps_around() -> None:
 
     d = nearest_circular_distance(np.array([3.1, -3.1, 0.0]), np.array([-3.13, 0.5]))
     assert d == pytest.approx([2 * math.pi - 3.1 - 3.13, 0.03, 0.5], abs=1e-9)
+
+
+def test_l2_matcher_takes_the_same_decisions_as_opencv_brute_force() -> None:
+    """The matrix-product matcher keeps exactly the pairs OpenCV's knnMatch + ratio test keeps, with a window mask."""
+    rng = np.random.default_rng(3)
+    ref = rng.random((400, 128), dtype=np.float32) * 100
+    query = ref[rng.choice(400, 150, replace=False)] + rng.normal(0, 8, (150, 128)).astype(np.float32)
+    query = np.vstack([query, rng.random((50, 128), dtype=np.float32) * 100])  # 50 without a partner
+    allowed = rng.random((200, 400)) < 0.5
+    allowed[:, :3] = False
+    allowed[0] = False
+    allowed[1] = False
+    allowed[1, 7] = True  # a single candidate: no ratio test, only the absolute distance
+    for mask in (None, allowed):
+        qi, ri = match(query, ref, cv2.NORM_L2, 0.8, mask)
+        knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(query, ref, k=2, mask=None if mask is None else mask.astype(np.uint8))
+        expected = []
+        for pair in knn:
+            if len(pair) == 2 and pair[0].distance < 0.8 * pair[1].distance:
+                expected.append((pair[0].queryIdx, pair[0].trainIdx))
+            elif len(pair) == 1 and pair[0].distance < 250.0:
+                expected.append((pair[0].queryIdx, pair[0].trainIdx))
+        assert list(zip(qi.tolist(), ri.tolist())) == expected
+        assert len(expected) > 40  # most true partners survive (about half of them are masked out)
+
+
+def test_support_of_many_vote_rows_equals_the_pairwise_count() -> None:
+    from factorloc.geometry import wrap_angle
+    from factorloc.vision.keypoints import support_rows
+
+    rng = np.random.default_rng(4)
+    votes = rng.uniform(-4.0, 4.0, (24, 120))
+    votes[:, :40] = math.pi - 0.01 + rng.normal(0, 0.01, (24, 40))  # a mode straddling ±π
+    band = math.radians(1.5)
+    brute = np.array([(np.abs(wrap_angle(v[:, None] - v[None, :])) <= band).sum(axis=1) for v in votes])
+    assert np.array_equal(support_rows(votes, band), brute)
+    assert brute.max() >= 30
+
+
+def test_circular_abs_diff_matches_wrap_angle_to_a_microradian() -> None:
+    from factorloc.geometry import wrap_angle
+    from factorloc.vision.keypoints import circular_abs_diff
+
+    rng = np.random.default_rng(5)
+    a, b = rng.uniform(-math.pi, math.pi, 300), rng.uniform(-math.pi, math.pi, 200)
+    exact = np.abs(wrap_angle(a[None, :] - b[:, None] - 2.5))
+    assert np.max(np.abs(circular_abs_diff(a, b, 2.5) - exact)) < 2e-6
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.5])
+def test_sift_keypoints_are_unbiased_at_full_and_reduced_detection_scale(scale) -> None:
+    """OpenCV's SIFT reports blobs ¼ px off (its doubled first octave); detect() removes that at any scale."""
+    from factorloc.vision.keypoints import detect, make_detector
+
+    yy, xx = np.mgrid[0:200, 0:400]
+    centres = [(50.3, 60.0), (150.0, 100.7), (300.5, 140.2), (220.0, 50.0)]
+    image = sum(200 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 3.0**2)) for x, y in centres) + 20
+    xy, desc = detect(image.astype(np.float32), make_detector("sift", 100), scale=scale)
+    assert desc is not None and len(xy) >= 4
+    for x, y in centres:
+        assert np.min(np.hypot(xy[:, 0] - x, xy[:, 1] - y)) < 0.06
