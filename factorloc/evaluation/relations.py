@@ -18,7 +18,9 @@ Methods compared side by side in one run, all seeded by the same odometry:
   reliable when the localization fused at least one reliable estimate;
 * ``ours_icp`` — the ICP step's own estimate in that same run, with its own
   covariance and reliability verdict (what the estimator is responsible for,
-  without the odometry it is fused with); requested together with ``ours``;
+  without the odometry it is fused with); requested together with ``ours``.
+  A heading-only ICP result (degenerate geometry) counts as no position
+  estimate: unreliable, infinite error;
 * ``odometry`` — the odometry alone (reliable per the odometry step's σ test);
 * ``open3d_p2p`` / ``open3d_p2plane`` — Open3D's ICP
   (:mod:`factorloc.registration.open3d_peer`), reliable when its fitness
@@ -285,7 +287,20 @@ def relations_benchmark(
                     "localize_seconds": dt,
                 }
                 nees_icp = math.nan
-                if icp_est is not None:
+                heading_only = icp_est is not None and icp_est.kind == "heading"
+                if heading_only:
+                    # a heading-only ICP result (degenerate geometry): the step vouches for no position; its row
+                    # shows the pose ICP converged to (slid along the corridor), unreliable
+                    T_icp = Pose2.from_array(icp_est.diagnostics["T_reference_query"])
+                    eti, eri = _errors(true, T_icp)
+                    diag.update(
+                        icp_error_translation_m=eti,
+                        icp_error_rotation_deg=eri,
+                        icp_reliable=False,
+                        icp_heading_only=True,
+                        icp_heading_error_rad=abs(math.remainder(icp_est.values[0] - true.theta, 2 * math.pi)),
+                    )
+                elif icp_est is not None:
                     T_icp = Pose2.from_array(icp_est.values)
                     eti, eri = _errors(true, T_icp)
                     e = _position_error_world(true, T_icp)
@@ -306,7 +321,11 @@ def relations_benchmark(
                 used_global = bool(icp_est is not None and icp_est.diagnostics.get("used_global_init", False))
                 out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, icp_seconds, d2, used_global, diag))
                 if "ours_icp" in methods:
-                    if icp_est is None:
+                    if heading_only:
+                        out.append(
+                            RelationResult("ours_icp", i, kind, eti, eri, False, False, icp_seconds, math.nan, False, diag)
+                        )
+                    elif icp_est is None:
                         out.append(RelationResult("ours_icp", i, kind, math.inf, math.inf, False, False, icp_seconds))
                     else:
                         wrong_i, _ = _wrong(true, T_icp, icp_est.covariance)

@@ -49,7 +49,18 @@ class GlobalSearchParams:
         Level 2 lattice and field blur; level 2 searches ± one coarse cell and
         ± one coarse angle step around each level-1 survivor.
     n_candidates
-        How many level-1 maxima survive non-maximum suppression.
+        How many poses the search returns (the best level-2 scores).
+    n_coarse
+        How many level-1 maxima survive non-maximum suppression and are
+        re-scored on the fine level. Larger than ``n_candidates``: the coarse
+        score ranks a partially overlapping true pose poorly (a 180° laser
+        scan turned by 100–170° against its reference overlaps it on a few
+        walls, which at 0.3 m / 3° fall off the coarse field's peak), whereas
+        the fine score ranks it well. Measured on the Intel loop relations
+        (every 5th, 243): the ICP-refined result was within 10 cm / 1° of the
+        truth for 89.3 % with the 10 best coarse maxima and 93.4 % with 40;
+        on all 1211, 89.9 % with 40 and 91.8 % with 120 (ACES, 88 loops:
+        54.5 → 63.6 %).
     separation_m, separation_rad
         Two maxima closer than both are the same (suppression radius).
     """
@@ -63,6 +74,7 @@ class GlobalSearchParams:
     fine_sigma_m: float = 0.08
     fine_angle_step_rad: float = math.radians(0.5)
     n_candidates: int = 10
+    n_coarse: int = 120
     separation_m: float = 0.6
     separation_rad: float = math.radians(10.0)
 
@@ -84,6 +96,8 @@ class GlobalSearchParams:
                 raise InputError(f"GlobalSearchParams.{name} must be > 0, got {v!r}")
         if self.n_candidates < 1:
             raise InputError(f"GlobalSearchParams.n_candidates must be >= 1, got {self.n_candidates!r}")
+        if self.n_coarse < self.n_candidates:
+            raise InputError(f"GlobalSearchParams.n_coarse must be >= n_candidates ({self.n_candidates}), got {self.n_coarse!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,8 +145,13 @@ def _score_lattice(
     thetas: np.ndarray,
     t_lo: np.ndarray,
     n_steps: tuple[int, int],
+    stride: int = 1,
 ) -> np.ndarray:
     """Scores (A, Kx, Ky) of poses ``(t_lo + res·(kx, ky), θ_a)``: mean field value under the query points.
+
+    ``t_lo`` is one corner (2,) for every heading, or one per heading (A, 2).
+
+    With ``stride`` s > 1 only every s-th translation is scored: (A, ⌈Kx/s⌉, ⌈Ky/s⌉) at ``kx, ky ∈ {0, s, 2s, …}``.
 
     For a query point in cell ``(bx, by)`` at translation offset ``(0, 0)``,
     the values at all offsets are the field's ``Kx × Ky`` window starting at
@@ -146,14 +165,18 @@ def _score_lattice(
     # rotated query points: (A, N)
     rx = c[:, None] * query_m[None, :, 0] - s[:, None] * query_m[None, :, 1]
     ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
-    bx = np.floor((rx + t_lo[0] - field.origin_m[0]) / res + 1e-9).astype(np.int64)
-    by = np.floor((ry + t_lo[1] - field.origin_m[1]) / res + 1e-9).astype(np.int64)
+    t_lo = np.asarray(t_lo, dtype=np.float64)
+    tx, ty = (t_lo[0], t_lo[1]) if t_lo.ndim == 1 else (t_lo[:, :1], t_lo[:, 1:])
+    bx = np.floor((rx + tx - field.origin_m[0]) / res + 1e-9).astype(np.int64)
+    by = np.floor((ry + ty - field.origin_m[1]) / res + 1e-9).astype(np.int64)
     kx, ky = n_steps
     px0, px1 = max(0, -int(bx.min())), max(0, int(bx.max()) + kx - F.shape[0])
     py0, py1 = max(0, -int(by.min())), max(0, int(by.max()) + ky - F.shape[1])
     if px0 or px1 or py0 or py1:
         F = np.pad(F, ((px0, px1), (py0, py1)))
     windows = np.lib.stride_tricks.sliding_window_view(F, (kx, ky))
+    if stride > 1:
+        windows = windows[:, :, ::stride, ::stride]
     return windows[bx + px0, by + py0].mean(axis=1)
 
 
@@ -213,10 +236,19 @@ def search(
     scores = np.concatenate(
         [_score_lattice(coarse, q1, thetas[i : i + 16], t_lo, (2 * n1 + 1, 2 * n1 + 1)) for i in range(0, len(thetas), 16)]
     )
-    order = np.argsort(scores, axis=None)[::-1]
+    # local maxima of the score volume (heading × x × y) within the suppression radius, then a greedy
+    # non-maximum suppression among them, best first: sorting only the peaks, not every pose
+    sep_a = max(1, int(p.separation_rad // p.coarse_angle_step_rad))
+    sep_t = max(1, int(p.separation_m // r1))
+    size = (min(2 * sep_a + 1, len(thetas)), 2 * sep_t + 1, 2 * sep_t + 1)
+    wrap = heading_half_width_rad >= math.pi
+    peak = scores >= ndimage.maximum_filter(scores, size=size, mode=("wrap" if wrap else "nearest", "nearest", "nearest"))
+    peak &= scores > 0.0
+    idx = np.flatnonzero(peak)
+    idx = idx[np.argsort(scores.ravel()[idx], kind="stable")[::-1]]
     picked: list[tuple[float, float, float, float]] = []
-    for flat in order:
-        a, kx, ky = np.unravel_index(flat, scores.shape)
+    for flat in idx:
+        a, kx, ky = np.unravel_index(int(flat), scores.shape)
         x, y, th = t_lo[0] + kx * r1, t_lo[1] + ky * r1, float(thetas[a])
         if any(
             math.hypot(x - px, y - py) < p.separation_m and abs(math.remainder(th - pt, 2 * math.pi)) < p.separation_rad
@@ -224,22 +256,43 @@ def search(
         ):
             continue
         picked.append((x, y, th, float(scores[a, kx, ky])))
-        if len(picked) >= p.n_candidates:
+        if len(picked) >= p.n_coarse:
             break
 
     # level 2: fine lattice around each survivor
     q2 = voxel_downsample_2d(qry, 0.5 * p.fine_resolution_m)
     r2 = p.fine_resolution_m
     n2 = int(math.ceil(r1 / r2))
+    # 2a: every other fine cell and fine angle step over ± one coarse cell and step; 2b: the full fine lattice
+    # within one (doubled) step of 2a's best — a quarter of the work of the full lattice, the same maxima. Every
+    # survivor's headings are scored in one gather (one corner per heading row)
+    m = len(picked)
     out: list[Candidate] = []
-    for x, y, th, _ in picked:
-        th2 = _angle_grid(th, p.coarse_angle_step_rad, p.fine_angle_step_rad)
-        lo = np.array([x, y]) - n2 * r2
-        sc = _score_lattice(fine, q2, th2, lo, (2 * n2 + 1, 2 * n2 + 1))
-        a, kx, ky = np.unravel_index(int(np.argmax(sc)), sc.shape)
-        out.append(Candidate(Pose2(float(lo[0] + kx * r2), float(lo[1] + ky * r2), float(th2[a])), float(sc[a, kx, ky])))
+    if m:
+        xyt = np.array([(x, y, th) for x, y, th, _ in picked])
+        offs = _angle_grid(0.0, p.coarse_angle_step_rad, 2.0 * p.fine_angle_step_rad)
+        th2 = (xyt[:, 2:3] + offs[None, :]).ravel()
+        lo = np.repeat(xyt[:, :2] - n2 * r2, len(offs), axis=0)
+        sc = _score_lattice(fine, q2, th2, lo, (2 * n2 + 1, 2 * n2 + 1), stride=2).reshape(m, len(offs), -1)
+        flat = sc.reshape(m, -1).argmax(axis=1)
+        a, k = np.unravel_index(flat, sc.shape[1:])
+        kx, ky = np.unravel_index(k, (n2 + 1, n2 + 1))
+        best_th = xyt[:, 2] + offs[a]
+        best_lo = xyt[:, :2] - n2 * r2 + 2 * r2 * np.stack([kx, ky], axis=1)
+        offs3 = _angle_grid(0.0, p.fine_angle_step_rad, p.fine_angle_step_rad)
+        th3 = (best_th[:, None] + offs3[None, :]).ravel()
+        lo3 = np.repeat(best_lo - r2, len(offs3), axis=0)
+        sc3 = _score_lattice(fine, q2, th3, lo3, (3, 3)).reshape(m, -1)
+        flat3 = sc3.argmax(axis=1)
+        a3, k3 = np.unravel_index(flat3, (len(offs3), 9))
+        kx3, ky3 = np.unravel_index(k3, (3, 3))
+        for i in range(m):
+            pose = Pose2(
+                float(best_lo[i, 0] - r2 + kx3[i] * r2), float(best_lo[i, 1] - r2 + ky3[i] * r2), float(best_th[i] + offs3[a3[i]])
+            )
+            out.append(Candidate(pose, float(sc3[i, flat3[i]])))
     out.sort(key=lambda cand: -cand.score)
-    return out
+    return out[: p.n_candidates]
 
 
 def reference_fields(
