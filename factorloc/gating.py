@@ -1,6 +1,6 @@
 """Gating: which estimates are fused. Small pure rules.
 
-Two kinds of gate:
+Three kinds of gate:
 
 - **reliability** (the patent): an estimate is fused only if its σ is below
   its step's threshold and the estimator's own criteria hold (match count,
@@ -240,15 +240,18 @@ def seed_misfit(estimate: Estimate) -> str:
     (a degenerate seeded fit does not search elsewhere: the scan is the same),
     i.e. the scan — at least ``min_inliers`` points — did not fit around the
     seed; if the global search found nothing reliable either, the seed is
-    the suspect. An estimate that is itself reliable contradicts nothing here
-    (the consistency gate weighs it against the seed).
+    the suspect. An estimate that reliably measures a position of its own
+    contradicts nothing here (the consistency gate weighs it against the
+    seed); a reliable heading-only one may still report a misfit.
     """
-    if estimate.reliable:
-        return ""
     d = estimate.diagnostics
+    if estimate.reliable and estimate.measures(Component.X):
+        return ""
     if SEED_MISFIT in d:  # the step judged it itself ("" or None: its data do not contradict the seed)
         reason = d[SEED_MISFIT]
         return f"{estimate.step}: {reason}" if reason else ""
+    if estimate.reliable:
+        return ""
     if d.get("seeded") and d.get("used_global_init"):
         n = d.get("n_query_points")
         pts = f"{int(n)} query points" if isinstance(n, (int, float)) and math.isfinite(n) else "the query data"

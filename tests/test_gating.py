@@ -89,6 +89,9 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
         diagnostics={"seeded": True, "used_global_init": True, "seed_misfit": ""},
     )  # fmt: skip
     assert seed_audit([odo, checked]) == {}
+    # a reliable heading-only result (a wall fixes the heading, not the position) may still refute the position seed
+    wall = Estimate.heading("icp", 0.3, 0.003, diagnostics={"seed_misfit": "18 % of the scan in seen-free space"})
+    assert seed_audit([odo, wall]) == {0: "seed contradicted by icp: 18 % of the scan in seen-free space"}
 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
