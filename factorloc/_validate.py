@@ -57,7 +57,7 @@ def float_array(name: str, value: Any, shape: tuple[int | None, ...], *, min_row
     if arr.ndim >= 1 and arr.shape[0] < min_rows:
         raise InputError(f"{name} must have at least {min_rows} row(s), got {arr.shape[0]}")
     out = np.array(arr, dtype=np.float64, copy=True)
-    if not np.all(np.isfinite(out)):
+    if not np.isfinite(out).all():
         bad = int(np.count_nonzero(~np.isfinite(out)))
         raise InputError(f"{name} contains {bad} NaN or infinite value(s)")
     out.setflags(write=False)

@@ -21,6 +21,8 @@ def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     The one helper every module uses, so that wrapping is done the same way
     everywhere.
     """
+    if isinstance(angle_rad, float):  # the common scalar case without numpy's call overhead; same arithmetic
+        return float(np.float64(angle_rad + math.pi) % (2.0 * math.pi) - math.pi)
     wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + math.pi, 2.0 * math.pi) - math.pi
     if np.ndim(wrapped) == 0:
         return float(wrapped)

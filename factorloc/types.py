@@ -59,13 +59,32 @@ def _components(value: Any) -> tuple[Component, ...]:
     return comps
 
 
+def _cholesky_pivots(c: list[list[float]]) -> list[float]:
+    """The pivots ``d_i`` of the LDLᵀ factorization of a small symmetric matrix (all > 0 ⇔ positive definite).
+
+    Plain Python for k ≤ 3: a numpy call costs more than the arithmetic. The
+    factorization stops at the first pivot ≤ 0 (it is returned last).
+    """
+    k = len(c)
+    L = [[0.0] * k for _ in range(k)]
+    d: list[float] = []
+    for j in range(k):
+        dj = c[j][j] - sum(L[j][m] * L[j][m] * d[m] for m in range(j))
+        d.append(dj)
+        if not dj > 0.0:
+            break
+        for i in range(j + 1, k):
+            L[i][j] = (c[i][j] - sum(L[i][m] * L[j][m] * d[m] for m in range(j))) / dj
+    return d
+
+
 def _covariance(name: str, value: Any, k: int) -> np.ndarray:
     cov = float_array(name, value, (k, k))
-    if not np.allclose(cov, cov.T, rtol=1e-9, atol=1e-15):
+    if (np.abs(cov - cov.T) > 1e-15 + 1e-9 * np.abs(cov.T)).any():  # np.allclose(rtol=1e-9, atol=1e-15), cheaper
         raise InputError(f"{name} must be symmetric, got {cov.tolist()}")
     cov = 0.5 * (cov + cov.T)
-    eig = np.linalg.eigvalsh(cov)
-    if eig.min() <= 0.0:
+    if not all(p > 0.0 for p in _cholesky_pivots(cov.tolist())):
+        eig = np.linalg.eigvalsh(cov)
         raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig.tolist()}")
     cov.setflags(write=False)
     return cov

@@ -220,3 +220,25 @@ def test_certainty_of_an_elongated_gaussian_and_of_undetermined_components() -> 
     assert und.certainty(1.0, 1.0) == 0.0
     with pytest.raises(InputError, match="radius_m"):
         loc.certainty(-1.0, 0.1)
+
+
+def test_positive_definite_check_agrees_with_eigenvalues_on_random_and_near_singular_matrices():
+    """The LDLᵀ pivot test (plain Python, k ≤ 3) accepts exactly the matrices whose eigenvalues are all > 0."""
+    from factorloc.types import _cholesky_pivots
+
+    rng = np.random.default_rng(4)
+    checked = 0
+    for _ in range(3000):
+        k = int(rng.integers(1, 4))
+        # eigenvalues spanning 1e-8..1e4 (σ from 1e-4 to 1e2), some exactly zero or negative
+        eig = 10.0 ** rng.uniform(-8, 4, k) * rng.choice([1.0, 1.0, 1.0, -1.0, 0.0], k)
+        q, _ = np.linalg.qr(rng.normal(size=(k, k)))
+        c = q @ np.diag(eig) @ q.T
+        c = 0.5 * (c + c.T)
+        lam = np.linalg.eigvalsh(c)
+        if abs(lam).min() < 1e-10 * abs(lam).max():
+            continue  # numerically singular: either answer is right
+        pivots = _cholesky_pivots(c.tolist())
+        assert all(p > 0 for p in pivots) == bool(lam.min() > 0), (c, lam, pivots)
+        checked += 1
+    assert checked > 2000
