@@ -398,13 +398,12 @@ def constraint_strength(result: IcpResult) -> float:
     0 for one wall or a corridor without features, 0.5 for a round room.
     """
     w = result.weights
-    if len(w) < 3 or not np.sum(w) > 0.0:
+    sw = float(w.sum()) if len(w) >= 3 else 0.0
+    if not sw > 0.0:
         return 0.0
-    n = result.jacobians[:, :2]
-    sw = float(np.sum(w))
-    a = float(np.dot(w, n[:, 0] * n[:, 0])) / sw
-    c = float(np.dot(w, n[:, 1] * n[:, 1])) / sw
-    b = float(np.dot(w, n[:, 0] * n[:, 1])) / sw
+    # Σ wᵢ nᵢnᵢᵀ is the position block of the Hessian (the Jacobian's first two columns are the normals)
+    h = result.hessian
+    a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
     # smallest eigenvalue of [[a, b], [b, c]]
     return 0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b)
 
@@ -465,8 +464,8 @@ def _chi2_2dof(probability: float) -> float:
     return float(chi2.ppf(probability, 2))
 
 
-def _seeded_params(config: IcpConfig, points: np.ndarray, pos: tuple, head: tuple) -> IcpParams:
-    """ICP parameters whose first correspondence gate matches the seed's 3σ (position and heading at the median range)."""
+def _seeded_gate(config: IcpConfig, points: np.ndarray, pos: tuple, head: tuple) -> float:
+    """The first correspondence gate of a seeded ICP: the seed's 3σ (position and heading at the median range)."""
     rng = np.hypot(points[:, 0], points[:, 1])
     k = len(rng) // 2
     if len(rng) % 2:
@@ -476,13 +475,19 @@ def _seeded_params(config: IcpConfig, points: np.ndarray, pos: tuple, head: tupl
         rho = 0.5 * float(part[k - 1] + part[k])  # the median, without np.median's overhead
     sigma = math.hypot(max(pos[2], pos[3]), head[1] * rho)
     p = config.icp
-    gate = min(p.max_correspondence_m, max(2.0 * p.min_correspondence_m, 3.0 * sigma + config.seed_gate_margin_m))
-    return _with_gate(p, gate)
+    return min(p.max_correspondence_m, max(2.0 * p.min_correspondence_m, 3.0 * sigma + config.seed_gate_margin_m))
 
 
-@lru_cache(maxsize=256)
-def _with_gate(params: IcpParams, gate: float) -> IcpParams:
-    return replace(params, max_correspondence_m=gate)
+def _mahalanobis2(e: np.ndarray, s: np.ndarray) -> float:
+    """``eᵀ S⁻¹ e`` of a 2-vector and a 2×2 covariance, in closed form."""
+    s00, s01, s11 = float(s[0, 0]), float(s[0, 1]), float(s[1, 1])
+    ex, ey = float(e[0]), float(e[1])
+    return (s11 * ex * ex - 2.0 * s01 * ex * ey + s00 * ey * ey) / (s00 * s11 - s01 * s01)
+
+
+@lru_cache(maxsize=16)
+def _kernel(name: str, scale: float):
+    return kernel_from_name(name, scale)
 
 
 def _distinct(a: Pose2, b: Pose2, config: IcpConfig) -> bool:
@@ -501,7 +506,7 @@ def _global(
     radius_m: float,
 ) -> tuple[IcpResult | None, float, float, float, int]:
     """Global search + ICP refinement: (best result, its violation, its score, the best distinct rival's score, candidates)."""
-    kernel = kernel_from_name(config.kernel, config.kernel_scale_m)
+    kernel = _kernel(config.kernel, config.kernel_scale_m)
     params = config.global_search
     if radius_m < params.radius_m:
         params = replace(params, radius_m=radius_m)
@@ -570,7 +575,7 @@ def estimate(
         raise InputError(f"query_points_m must be N×2, got shape {pts.shape}")
     if len(pts) < max(3, config.min_inliers):
         raise InputError(f"query scan has {len(pts)} point(s); need >= {max(3, config.min_inliers)}")
-    kernel = kernel_from_name(config.kernel, config.kernel_scale_m)
+    kernel = _kernel(config.kernel, config.kernel_scale_m)
     T_wr = prepared.T_world_reference
     T_rw = T_wr.inverse()
     pos = hypotheses.position()
@@ -591,7 +596,9 @@ def estimate(
     profile: np.ndarray | None = None
     if seeded:
         T_seed = T_rw * Pose2(pos[0], pos[1], head[0])
-        result = align(prepared.target, pts, T_seed, _seeded_params(config, pts, pos, head), kernel)
+        result = align(
+            prepared.target, pts, T_seed, config.icp, kernel, max_correspondence_m=_seeded_gate(config, pts, pos, head)
+        )
         cov = _covariance(result, config)
         strength = constraint_strength(result)
         verdict = _judge(result, cov, config, 0.0, strength)
@@ -661,7 +668,7 @@ def estimate(
                 # a solution outside the region of a reliable position seed overturns it: only unambiguous evidence may
                 e_g = (T_wr * g.T_target_source).translation - np.array([pos[0], pos[1]])
                 s_g = rotate_covariance(g_cov, T_wr.theta)[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2])
-                if float(e_g @ np.linalg.solve(s_g, e_g)) > _chi2_2dof(config.seed_consistency_probability):
+                if _mahalanobis2(e_g, s_g) > _chi2_2dof(config.seed_consistency_probability):
                     ratio = min(ratio, config.seed_contradiction_ambiguity_ratio)
                     s_fit, s_v = seeded_fit
                     if g_verdict.reliable and s_v <= config.max_violation:
@@ -700,7 +707,7 @@ def estimate(
     seed_inconsistent = False
     if pos is not None:
         e = np.array([T_world_query.x - pos[0], T_world_query.y - pos[1]])
-        seed_d2 = float(e @ np.linalg.solve(cov_world[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2]), e))
+        seed_d2 = _mahalanobis2(e, cov_world[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2]))
         limit = _chi2_2dof(config.seed_consistency_probability)
         jump = float(np.hypot(*e)) > config.seed_jump_margin_m + 3.0 * max(pos[2], pos[3])
         # only a *seeded* ICP that left its seed is suspect (it slid or converged to a wrong minimum); a global
