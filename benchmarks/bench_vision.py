@@ -22,7 +22,16 @@ confidently-wrong rate (reliable and off by > 3σ).
 With ``--sim N`` it also prints the accuracy table in the simulated apartment (N queries per
 distance band / position σ / fault).
 
-Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N]``. Prints figures; asserts nothing.
+With ``--scenario DIR`` (e.g. ``factorloc simulate --world apartment --queries 300 --seed 7 /tmp/apt300``)
+it runs odometry → compass → correlation on the scenario's queries as the pipeline seeds them, for the
+default compass and the reduced-scale one (``query_scale=0.5``) in the same run, query by query
+(interleaved, so machine load hits both alike), and prints per step: CPU time per query (median, p95;
+``time.process_time``, OpenCV and BLAS on one thread), reliable rate, heading error of the reliable
+estimates (median, RMSE) and their heading NEES (1 dof: mean ``(err/σ)²``, ≈ 1 when σ is honest)
+with the count beyond 3σ.
+
+Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N] [--scenario DIR]``.
+Prints figures; asserts nothing.
 """
 
 from __future__ import annotations
@@ -243,12 +252,65 @@ def bench_sim_accuracy(n: int) -> None:
         print(tr.row(f"correl. {label}"))
 
 
+def bench_scenario(directory: Path, max_queries: int) -> None:
+    """Per-step CPU time, availability, accuracy and heading NEES on a scenario, default vs reduced-scale compass."""
+    import os
+
+    import cv2
+
+    from factorloc.datasets import load_scenario
+    from factorloc.evaluation.runner import evaluation_set
+
+    cv2.setNumThreads(1)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # read by BLAS at import: effective when set before numpy
+    data = evaluation_set(load_scenario(directory))
+    variants = {
+        "default": compass.CompassConfig(),
+        "query_scale=0.5": compass.CompassConfig(query_scale=0.5, query_sift_sigma=1.2),
+    }
+    odo = OdometryStep()
+    prepared: dict[tuple[str, str], tuple] = {}
+    rows: dict[tuple[str, str], list] = {(v, s): [] for v in variants for s in ("compass", "correlation")}
+    for case in data.cases[:max_queries]:
+        if case.truth is None or (not case.query.images and case.query.panorama is None):
+            continue
+        ref = data.reference_of(case)
+        hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
+        for name, cfg in variants.items():
+            key = (name, case.reference_id)
+            if key not in prepared:
+                prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
+            pc, pr = prepared[key]
+            t0 = time.process_time()
+            ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
+            t1 = time.process_time()
+            er = correlation.estimate(ref, case.query, hyp.plus(ec), prepared=pr)
+            t2 = time.process_time()
+            for step, est, sec in (("compass", ec, t1 - t0), ("correlation", er, t2 - t1)):
+                err = math.remainder(est.value("theta") - case.truth.theta, 2 * math.pi)
+                rows[(name, step)].append((sec, est.reliable, err, est.sigma("theta")))
+    print(f"\n== scenario {directory} ({len(rows[('default', 'compass')])} queries), seeded as in the pipeline ==")
+    print(f"{'compass variant / step':34s} {'cpu ms med':>10s} {'p95':>7s} {'reliable':>8s} {'med err°':>8s} "
+          f"{'rmse°':>7s} {'NEES':>6s} {'>3σ':>4s}")
+    for (name, step), r in rows.items():
+        sec = np.array([x[0] for x in r]) * 1e3
+        rel = [x for x in r if x[1]]
+        err = np.degrees(np.abs([x[2] for x in rel])) if rel else np.array([math.nan])
+        z2 = np.array([(x[2] / x[3]) ** 2 for x in rel]) if rel else np.array([math.nan])
+        print(f"{name + ' / ' + step:34s} {np.median(sec):10.1f} {np.percentile(sec, 95):7.1f} {len(rel) / len(r):8.2f} "
+              f"{np.median(err):8.3f} {math.sqrt(np.mean(err**2)):7.2f} {np.mean(z2):6.2f} {int(np.sum(z2 > 9.0)):4d}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=30, help="queries of the sample scenario (default: all 30)")
     parser.add_argument("--views", type=int, default=20, help="views per real panorama")
     parser.add_argument("--sim", type=int, default=0, help="also measure accuracy on N simulated queries per condition")
+    parser.add_argument("--scenario", type=Path, default=None, help="also measure per-step CPU time and NEES on this scenario")
+    parser.add_argument("--scenario-queries", type=int, default=300, help="queries of --scenario to run")
     args = parser.parse_args()
+    if args.scenario is not None:
+        bench_scenario(args.scenario, args.scenario_queries)
     if args.sim > 0:
         bench_sim_accuracy(args.sim)
     if (SAMPLE / "scenario.yaml").is_file():

@@ -88,6 +88,8 @@ class CompassConfig:
         is never reduced below ``query_min_detect_px`` pixels (≈ 90×130; smaller views yield
         too few keypoints for ``min_inliers``): its scale is ``min(1, max(query_scale,
         √(query_min_detect_px / pixels)))`` (:func:`detection_scale`).
+    query_octave_layers
+        SIFT's layers per octave for the query views (OpenCV's ``nOctaveLayers``).
     query_sift_sigma
         SIFT's assumed input blur for the query views (OpenCV's ``sigma``; 1.6 in Lowe's paper):
         1.2 keeps ~30 % more keypoints on the downscaled views, at no extra cost.
@@ -141,9 +143,9 @@ class CompassConfig:
         inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
         heading's marginal σ (features at several depths and directions separate a turn from a
         sideways shift); ``depth_relative_sigma`` is the relative error of the reference ranges.
-        Only with at least ``resection_min_inliers`` inlier bearings: from fewer (often a dozen on one
-        wall and one or two far ones with coarse ranges) it was confidently wrong (4σ, 3.8°, on the
-        simulated apartment); below it σθ2 keeps the parallax term σ_p / range.
+        A reference range's σ is the larger of ``depth_relative_sigma``·D and half the range spread
+        around it in the depth map (depth edges): a dozen bearings on one wall plus two far ones whose
+        coarse ranges were wrong made a confidently wrong resection (3.8°, 4.3σ, on the simulated apartment).
     position_shift_support
         With a position hypothesis the pairs are also voted from a 5×5 grid of positions within ±2σ of
         it; unreliable when one of them gives a mode with ≥ this many times the inliers, more than 3σθ2
@@ -157,9 +159,9 @@ class CompassConfig:
     detector: str = "sift"
     n_features_reference: int = 4000
     n_features_query: int = 1500
-    query_scale: float = 1.0
+    query_scale: float = 0.5
     reference_scale: float = 1.0
-    query_sift_sigma: float = 1.6
+    query_sift_sigma: float = 1.2
     query_octave_layers: int = 3
     query_min_detect_px: int = 12000
     fast_threshold: int = 10
@@ -185,7 +187,6 @@ class CompassConfig:
     record_pairs: bool = False
     position_shift_support: float = 1.1
     resection: bool = True
-    resection_min_inliers: int = 20
     depth_relative_sigma: float = 0.1
 
     def __post_init__(self) -> None:
@@ -197,6 +198,8 @@ class CompassConfig:
         for name in ("query_scale", "reference_scale"):
             if not 0.2 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"compass.{name} must be in [0.2, 1], got {getattr(self, name)!r}")
+        if self.query_octave_layers < 1:
+            raise ConfigError(f"compass.query_octave_layers must be >= 1, got {self.query_octave_layers!r}")
         if not self.query_sift_sigma > 0.0:
             raise ConfigError(f"compass.query_sift_sigma must be > 0, got {self.query_sift_sigma!r}")
         if self.query_min_detect_px < 0:
@@ -243,7 +246,10 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     gray = to_gray(pano.image_bgr)
     problem = texture_problem(gray)
     det = kp.make_detector(config.detector, config.n_features_reference, config.fast_threshold)
-    xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4), scale=config.reference_scale) if problem is None else (np.zeros((0, 2)), None)
+    if problem is None:
+        xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4), scale=config.reference_scale)
+    else:
+        xy, desc = np.zeros((0, 2)), None
     if problem is None and (desc is None or len(xy) < config.min_inliers):
         problem = f"reference panorama has only {len(xy)} keypoints"
     az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
@@ -254,7 +260,10 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
 
 
 def detection_scale(pixels: int, config: CompassConfig) -> float:
-    """The scale a query view of ``pixels`` pixels is detected at: ``min(1, max(query_scale, √(query_min_detect_px / pixels)))``."""
+    """The scale a query view of ``pixels`` pixels is detected at.
+
+    ``min(1, max(query_scale, √(query_min_detect_px / pixels)))``: never below ``query_min_detect_px`` pixels.
+    """
     if pixels <= 0:
         return 1.0
     return float(min(1.0, max(config.query_scale, math.sqrt(config.query_min_detect_px / pixels))))
@@ -443,7 +452,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
     sigma = math.sqrt(spread**2 / max(n_eff - 1, 1) + sigma_cluster**2 + config.sigma_floor_rad**2 + sigma_par**2)
     sigma = max(sigma, prepared.grid.rad_per_px)
     resected = None
-    if position is not None and config.resection and n_in >= max(config.min_inliers, config.resection_min_inliers):
+    if position is not None and config.resection and n_in >= config.min_inliers:
         k = ref_index[ri[inliers]]
         resected = resect(
             prepared.depth,
@@ -600,8 +609,9 @@ def resect(
     Model: the query at world ``(x, y)`` with heading θ sees the reference point
     ``P_i`` (from ``depth``) at robot azimuth ``az_query_i``:
     ``atan2(P_i,y − y, P_i,x − x) − θ = az_query_i + ε_i``, with
-    ``σ(ε_i)² = pixel² + (depth_relative_sigma · D_i · sin Δ_i / r_i)²`` (a range error
-    along the reference ray, seen from the query at angle Δ_i and range r_i), and the
+    ``σ(ε_i)² = pixel² + (σ_D,i · sin Δ_i / r_i)²`` (a range error σ_D,i along the reference ray,
+    seen from the query at angle Δ_i and range r_i; ``σ_D = max(depth_relative_sigma · D_i, ½ spread_i)``
+    with ``spread_i`` the depth map's range spread around the point, large at depth edges), and the
     prior ``(x, y) ~ N(seed, σ_p² I)``. Bearings further than 3σ from the solution are
     dropped once. The measurement information is scaled by
     ``min(1, max_effective_inliers / n)`` (correlated errors). The heading's σ is the larger of
@@ -616,6 +626,8 @@ def resect(
     """
     pts = depth.world_points(az_ref_rad, el_ref_rad)
     ranges_ref = depth.range_at(az_ref_rad, el_ref_rad)
+    # a range's σ: relative, or half the range spread around it where the coarse map has a depth edge
+    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * depth.spread_at(az_ref_rad, el_ref_rad))
     az_ref_world = depth.T_world_reference.theta + np.asarray(az_ref_rad)
     ref_dir = np.column_stack([np.cos(az_ref_world), np.sin(az_ref_world)])
     prior = np.array([T_world_seed.x, T_world_seed.y])
@@ -630,7 +642,7 @@ def resect(
         bearing = np.arctan2(d[:, 1], d[:, 0])
         res = np.asarray(wrap_angle(bearing - state[2] - az_query_rad))
         sin_delta = np.abs(ref_dir[:, 0] * d[:, 1] - ref_dir[:, 1] * d[:, 0]) / r
-        var = pixel_rad**2 + (config.depth_relative_sigma * ranges_ref * sin_delta / r) ** 2
+        var = pixel_rad**2 + (sigma_range * sin_delta / r) ** 2
         if it == 4:  # drop outlying bearings once, then re-converge
             keep &= np.abs(res) <= 3.0 * np.sqrt(var)
         n = int(keep.sum())

@@ -369,7 +369,9 @@ def _lobe_mask(c: np.ndarray, k: int, periodic: bool, min_half: int) -> np.ndarr
     return mask
 
 
-def _reachable_columns(strips: list[Strip], grid: Grid, seed: tuple[float, float] | None, margin_px: int = 8) -> np.ndarray | None:
+def _reachable_columns(
+    strips: list[Strip], grid: Grid, seed: tuple[float, float] | None, margin_px: int = 8
+) -> np.ndarray | None:
     """Boolean mask (W,) of the reference columns any view can cover at a heading within the seeded window.
 
     A heading θ moves robot azimuth ``a`` to reference azimuth ``a + θ``, i.e. grid column ``c(a) − θ/Δ``
@@ -411,7 +413,11 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         # remove the parallax: correlate with the reference re-rendered from the hypothesised position
         p_ref = prepared.depth.T_world_reference.inverse().transform_points(np.array([position[0]]))[0]
         synth, range_m, magnification = synthesize(
-            prepared.levels[0], prepared.grid, prepared.depth, (p_ref[0], p_ref[1]), columns=_reachable_columns(strips, prepared.grid, seed)
+            prepared.levels[0],
+            prepared.grid,
+            prepared.depth,
+            (p_ref[0], p_ref[1]),
+            columns=_reachable_columns(strips, prepared.grid, seed),
         )
         # only level 0 is correlated after the warp (below): no pyramid of the re-rendered panorama
         prepared = dataclasses.replace(prepared, levels=(synth,), scales=((1.0, 1.0),))

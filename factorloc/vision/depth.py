@@ -39,9 +39,9 @@ class DepthMap:
     grid: Grid
     T_world_reference: Pose2
     camera_height_m: float
+    spread_m: np.ndarray | None = None
 
-    def range_at(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
-        """Horizontal range (m) behind reference-frame directions (azimuth, elevation; radians)."""
+    def _cell(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         rows, cols = self.range_m.shape
         az = np.asarray(azimuth_rad, dtype=np.float64)
         u = np.mod((self.grid.azimuth_col0_rad - az) / self.grid.rad_per_px, self.grid.width_px)
@@ -51,6 +51,22 @@ class DepthMap:
         else:
             v = 0.5 * self.grid.height_px - self.grid.focal_v_px * np.tan(np.asarray(elevation_rad, dtype=np.float64))
             r = np.clip((v * rows / self.grid.height_px).astype(int), 0, rows - 1)
+        return r, c
+
+    def spread_at(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
+        """Range spread (m) around reference-frame directions: max − min over the 3×3 cells about each.
+
+        Large at depth edges, where a direction's range is uncertain by about that much (the coarse
+        cell may hold the near or the far surface); 0 when the map was built without it.
+        """
+        if self.spread_m is None:
+            return np.zeros(np.shape(azimuth_rad))
+        r, c = self._cell(azimuth_rad, elevation_rad)
+        return self.spread_m[r, c]
+
+    def range_at(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
+        """Horizontal range (m) behind reference-frame directions (azimuth, elevation; radians)."""
+        r, c = self._cell(azimuth_rad, elevation_rad)
         return self.range_m[r, c]
 
     def world_points(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
@@ -124,7 +140,12 @@ def depth_map(reference: Reference, grid: Grid, camera_height_m: float, shape: t
     filled = padded[ri, ci][:, half : half + cols]
     filled = np.ascontiguousarray(filled)
     filled.setflags(write=False)
-    return DepthMap(filled, grid, reference.T_world_reference, float(camera_height_m))
+    # range spread over each cell's 3×3 neighbourhood (columns periodic): the range uncertainty at depth edges
+    wrapped = np.concatenate([filled[:, -1:], filled, filled[:, :1]], axis=1)
+    spread = ndimage.maximum_filter(wrapped, size=3, mode="nearest") - ndimage.minimum_filter(wrapped, size=3, mode="nearest")
+    spread = np.ascontiguousarray(spread[:, 1:-1])
+    spread.setflags(write=False)
+    return DepthMap(filled, grid, reference.T_world_reference, float(camera_height_m), spread)
 
 
 def position_seed(hypotheses) -> tuple[tuple[float, float], float] | None:  # noqa: ANN001 - Hypotheses

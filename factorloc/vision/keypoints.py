@@ -185,7 +185,8 @@ def circular_abs_diff(a_rad: np.ndarray, b_rad: np.ndarray, offset_rad: float = 
     Float32 and ``x − 2π·rint(x/2π)`` instead of :func:`~factorloc.geometry.wrap_angle`'s
     float64 modulo: several times faster on the 10⁶-element match masks, exact to ~1e-6 rad.
     """
-    x = np.asarray(a_rad, dtype=np.float32)[None, :] - (np.asarray(b_rad, dtype=np.float64) + offset_rad).astype(np.float32)[:, None]
+    b = (np.asarray(b_rad, dtype=np.float64) + offset_rad).astype(np.float32)
+    x = np.asarray(a_rad, dtype=np.float32)[None, :] - b[:, None]
     two_pi = np.float32(2.0 * math.pi)
     x -= two_pi * np.rint(x / two_pi)
     return np.abs(x, out=x)

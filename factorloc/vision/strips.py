@@ -16,6 +16,7 @@ field of view or yaw: both camera steps work on strips.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -133,7 +134,25 @@ def camera_strip(camera: CameraImage, grid: Grid, *, min_rows: int = 8, source: 
         gray = cv2.resize(gray, (nw, nh), interpolation=cv2.INTER_AREA)
         f, cx, cy = f * sx, (cx + 0.5) * sx - 0.5, (cy + 0.5) * sy - 0.5
         h, w = nh, nw
-    yaw = camera.yaw_in_robot_rad
+    yaw, pitch = float(camera.yaw_in_robot_rad), float(camera.pitch_rad)
+    maps = _camera_maps(grid, w, h, float(f), float(cx), float(cy), yaw, pitch, min_rows)
+    if maps is None:
+        return None
+    first, r0, map_x, map_y = maps
+    out = cv2.remap(gray, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return Strip(out, int(first % grid.width_px), int(r0), grid, False, source)
+
+
+@functools.lru_cache(maxsize=32)
+def _camera_maps(
+    grid: Grid, w: int, h: int, f: float, cx: float, cy: float, yaw: float, pitch: float, min_rows: int
+) -> tuple[int, int, np.ndarray, np.ndarray] | None:
+    """``(first column, first row, map_x, map_y)`` of :func:`camera_strip`'s remap, or None when too small.
+
+    A pure function of the camera's geometry and the grid, cached: a robot's cameras do not change
+    between queries, and the compass and the correlation reproject the same views (the trigonometry
+    over the strip's pixels costs several times the remap itself). The maps are read-only.
+    """
     a_left = math.atan((cx + 0.5) / f)
     a_right = math.atan((cx - w + 0.5) / f)
     c_lo = (grid.azimuth_col0_rad - (yaw + a_left)) / grid.rad_per_px
@@ -148,7 +167,7 @@ def camera_strip(camera: CameraImage, grid: Grid, *, min_rows: int = 8, source: 
     ca, sa = np.cos(alpha)[None, :], np.sin(alpha)[None, :]
     ce, se = np.cos(elev)[:, None], np.sin(elev)[:, None]
     x, y, z = ce * ca, ce * sa, np.broadcast_to(se, (elev.size, n))
-    cp, sp = math.cos(camera.pitch_rad), math.sin(camera.pitch_rad)
+    cp, sp = math.cos(pitch), math.sin(pitch)
     xc, zc = x * cp + z * sp, -x * sp + z * cp
     with np.errstate(divide="ignore", invalid="ignore"):
         u = cx - f * y / xc
@@ -159,10 +178,11 @@ def camera_strip(camera: CameraImage, grid: Grid, *, min_rows: int = 8, source: 
     if run is None or run[1] - run[0] < min_rows:
         return None
     r0, r1 = run
-    map_x = u[r0:r1].astype(np.float32)
-    map_y = v[r0:r1].astype(np.float32)
-    out = cv2.remap(gray, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return Strip(out, int(first % grid.width_px), int(r0), grid, False, source)
+    map_x = np.ascontiguousarray(u[r0:r1], dtype=np.float32)
+    map_y = np.ascontiguousarray(v[r0:r1], dtype=np.float32)
+    map_x.setflags(write=False)
+    map_y.setflags(write=False)
+    return first, r0, map_x, map_y
 
 
 def panorama_strip(panorama: Panorama, grid: Grid, *, source: str = "panorama") -> Strip | None:

@@ -63,7 +63,7 @@ def test_l2_matcher_takes_the_same_decisions_as_opencv_brute_force() -> None:
                 expected.append((pair[0].queryIdx, pair[0].trainIdx))
             elif len(pair) == 1 and pair[0].distance < 250.0:
                 expected.append((pair[0].queryIdx, pair[0].trainIdx))
-        assert list(zip(qi.tolist(), ri.tolist())) == expected
+        assert list(zip(qi.tolist(), ri.tolist(), strict=True)) == expected
         assert len(expected) > 40  # most true partners survive (about half of them are masked out)
 
 
