@@ -117,13 +117,36 @@ def test_degenerate_views_give_an_accurate_heading_only(seeded_results) -> None:
         assert err < 3.0 * est.sigma("theta") and err < math.radians(1.0)
 
 
+def test_a_distant_global_solution_does_not_overturn_a_free_space_consistent_seed(seeded_results) -> None:
+    # single 58° views whose seeded alignment found nothing (the reference never saw what the query sees) but put
+    # no point into seen-free space: the better-fitting place the global search finds elsewhere is not the truth
+    blocked = [(c, e) for c, e in seeded_results if e.reason.startswith("contradicts the odometry seed")]
+    assert len(blocked) >= 2
+    for case, est in blocked:
+        assert not est.reliable
+        assert est.diagnostics["used_global_init"]
+        assert est.diagnostics["seeded_violation"] <= 0.12
+        assert "seed_misfit" not in est.diagnostics
+        assert _errors(case, est)[0] > 0.3  # the global solution was wrong
+
+
 def test_unreliable_estimates_say_why(seeded_results) -> None:
     for _, est in seeded_results:
         assert est.reason
         if not est.reliable:
             assert any(
                 word in est.reason
-                for word in ("degenerate", "fitness", "score", "ambiguous", "inconsistent", "σ", "seen-free", "rmse")
+                for word in (
+                    "degenerate",
+                    "fitness",
+                    "score",
+                    "ambiguous",
+                    "inconsistent",
+                    "σ",
+                    "seen-free",
+                    "rmse",
+                    "contradicts",
+                )
             )
 
 

@@ -3,6 +3,8 @@ same pairs and seeds (the full table comes from ``benchmarks/bench_icp.py``)."""
 
 from __future__ import annotations
 
+import functools
+import math
 from pathlib import Path
 
 import numpy as np
@@ -10,14 +12,18 @@ import pytest
 
 from factorloc.datasets.rosbag import read_laser_log
 from factorloc.errors import DatasetError, InputError
+from factorloc.estimators.base import Hypotheses
+from factorloc.estimators.icp import IcpConfig, IcpReference, estimate
 from factorloc.evaluation.relations import (
     METHODS,
     Relations,
     format_table,
     read_relations,
     relations_benchmark,
+    relations_config,
     summarize,
 )
+from factorloc.geometry import Pose2
 
 
 @pytest.fixture(scope="module")
@@ -85,6 +91,50 @@ def test_icp_covariance_on_local_relations_is_near_calibrated(intel: list[dict],
         icp = _get(rows, "ours_icp", "local")
         assert 0.4 < icp["nees_icp_mean"] < 4.0  # conservative by design on real data (see relations_config)
         assert icp["confidently_wrong_rate"] < 0.05
+
+
+@functools.lru_cache(maxsize=2)
+def _log(path: Path):
+    return read_laser_log(path)
+
+
+def _loop_estimate(laser_dir: Path, name: str, index: int):
+    """The ICP step alone on relation ``index`` without any hypothesis (a loop: the odometry is metres off)."""
+    log, rel = _log(laser_dir / f"{name}.sort.bag"), read_relations(laser_dir / f"{name}.relations")
+    t1, t2 = float(rel.t1_s[index]), float(rel.t2_s[index])
+    assert log.odometry.distance_between(t1, t2)[0] > 5.0  # a loop relation
+    cfg = relations_config().icp
+    prep = IcpReference(log.scans.at(t1, 2e-3).points_m, Pose2(0.0, 0.0, 0.0), cfg)
+    est = estimate(prep, log.scans.at(t2, 2e-3).points_m, Hypotheses(), cfg)
+    err = Pose2.from_array(rel.poses[index]).between(Pose2.from_array(est.values))
+    return est, math.hypot(err.x, err.y), abs(math.degrees(err.theta))
+
+
+@pytest.mark.parametrize(
+    ("index", "why"),
+    [
+        (1948, "a corridor (constraint below the degeneracy threshold) whose few features decide: rivals < 0.7 x"),
+        (2035, "turned by 104°: the 180° scans overlap on a third of their points (score < 0.4), rivals < 0.5 x"),
+    ],
+)
+def test_intel_loop_closures_recovered_by_global_initialization(laser_dir: Path, index: int, why: str) -> None:
+    est, err_m, err_deg = _loop_estimate(laser_dir, "intel", index)
+    assert est.diagnostics["used_global_init"]
+    assert est.reliable, why
+    assert err_m < 0.10 and err_deg < 1.0
+    if index == 1948:
+        assert est.diagnostics["constraint"] < IcpConfig().min_constraint
+    else:
+        assert est.diagnostics["global_score"] < IcpConfig().min_score
+
+
+@pytest.mark.parametrize("index", [1242, 1223])
+def test_aces_corridor_loops_with_a_near_twin_are_flagged(laser_dir: Path, index: int) -> None:
+    # ACES corridors: the global solution is the corridor's 180° twin, metres off; its rivals score nearly as well
+    est, err_m, err_deg = _loop_estimate(laser_dir, "aces", index)
+    assert err_m > 0.5 and err_deg > 170.0
+    assert not est.reliable
+    assert "degenerate geometry" in est.reason
 
 
 def test_relations_reader_and_subset_reject_bad_input(tmp_path: Path) -> None:
