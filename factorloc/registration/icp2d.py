@@ -28,11 +28,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
-from factorloc.registration.kernels import Cauchy, RobustKernel
-from factorloc.registration.nn import LIFT_Z, KdTree2D
+from factorloc.registration.kernels import Cauchy, RobustKernel, weight_scalar
+from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest
 from factorloc.registration.scan2d import estimate_normals_2d
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
@@ -90,6 +91,7 @@ class IcpParams:
     sigma_point_m: float = 0.01
     sigma_bearing_rad: float = 0.0
     reassociate_m: float = 0.0
+    _core: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -115,23 +117,40 @@ class IcpParams:
             raise InputError(f"IcpParams.reassociate_m must be >= 0, got {self.reassociate_m!r}")
         if not 0.0 <= self.min_normal_quality < 1.0:
             raise InputError(f"IcpParams.min_normal_quality must be in [0, 1), got {self.min_normal_quality!r}")
+        core = np.array(
+            [
+                self.max_iterations,
+                self.min_correspondence_m,
+                self.shrink,
+                self.convergence_translation_m,
+                self.convergence_rotation_rad,
+                self.fitness_distance_m,
+                self.chamfer_cap_m,
+                self.min_normal_quality,
+                self.sigma_point_m**2,
+                self.sigma_bearing_rad**2,
+                self.reassociate_m,
+            ],
+            dtype=np.float64,
+        )
+        core.setflags(write=False)
+        object.__setattr__(self, "_core", core)  # what the compiled core of align reads (_P_* indices)
 
 
 @dataclass(frozen=True, eq=False)
 class PreparedScan:
     """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree
-    (:class:`~factorloc.registration.nn.KdTree2D`).
+    (:class:`~factorloc.registration.nn.KdTree2D`, for the other users of the scan: normals, covariance) and the
+    points' ranges (M,, m).
 
     The per-target terms of the residual are precomputed once (``n_ext``:
     the normals, ``c_ext``: ``nⱼ·pⱼ``, ``range2_ext``: squared ranges), each
-    with one extra row at index M — the index the KD-tree returns for "no
-    neighbour within the gate" — so that one gather serves every iteration.
-    ``lifted`` holds the points lifted to 3D for the KD-tree
-    (:data:`~factorloc.registration.nn.LIFT_Z`), ``rows`` (2, M+1, 3) the
-    coefficients that turn a lifted query point ``[q_x, q_y, 1]`` into the
-    residual ``nⱼ·q − cⱼ`` (``rows[1]``) and the rotation Jacobian about the
-    target origin ``n_y q_x − n_x q_y`` (``rows[0]``), and ``normals_t`` (2, M+1) the
-    normals as rows: what :func:`align` gathers per association.
+    with one extra row at index M — the index a bounded KD-tree query returns
+    for "no neighbour within the gate". The compiled core of :func:`align`
+    reads ``packed`` (M, 7) ``[p_x, p_y, n_x, n_y, c, ρ², quality]`` in the cell
+    order of the uniform grid ``grid_start``/``grid_geo``
+    (:func:`~factorloc.registration.nn.build_grid`; ``grid_order`` maps a
+    packed row to its point index), so that a search reads contiguous rows.
     """
 
     points_m: np.ndarray
@@ -142,36 +161,45 @@ class PreparedScan:
     n_ext: np.ndarray = field(init=False, repr=False)
     c_ext: np.ndarray = field(init=False, repr=False)
     range2_ext: np.ndarray = field(init=False, repr=False)
-    lifted: np.ndarray = field(init=False, repr=False)
-    rows: np.ndarray = field(init=False, repr=False)
-    normals_t: np.ndarray = field(init=False, repr=False)
-    _usable: dict = field(init=False, repr=False, default_factory=dict)
+    packed: np.ndarray = field(init=False, repr=False)
+    grid_order: np.ndarray = field(init=False, repr=False)
+    grid_start: np.ndarray = field(init=False, repr=False)
+    grid_geo: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        m = len(self.points_m)
-        nx, ny = self.normals[:, 0], self.normals[:, 1]
+        pts = np.ascontiguousarray(self.points_m, dtype=np.float64)
+        m = len(pts) if pts.ndim == 2 else 0
+        shapes = {"points_m": (m, 2), "normals": (m, 2), "quality": (m,), "ranges_m": (m,)}
+        for name, shape in shapes.items():
+            got = np.shape(getattr(self, name))
+            if got != shape or m == 0:
+                raise InputError(f"PreparedScan.{name} must have shape {shape} with M >= 1, got {got}")
+        if not np.isfinite(pts).all():
+            raise InputError("PreparedScan.points_m contains NaN or infinite values")
+        normals = np.asarray(self.normals, dtype=np.float64)
+        nx, ny = normals[:, 0], normals[:, 1]
         n_ext = np.zeros((m + 1, 2))
-        n_ext[:m] = self.normals
+        n_ext[:m] = normals
         c_ext = np.zeros(m + 1)
-        c_ext[:m] = nx * self.points_m[:, 0] + ny * self.points_m[:, 1]
+        c_ext[:m] = nx * pts[:, 0] + ny * pts[:, 1]
         r2 = np.zeros(m + 1)
-        r2[:m] = self.ranges_m**2
-        rows = np.zeros((2, m + 1, 3))
-        rows[0, :m, 0] = ny
-        rows[0, :m, 1] = -nx
-        rows[1, :m, :2] = self.normals
-        rows[1, :, 2] = -c_ext
-        normals_t = np.ascontiguousarray(n_ext.T)
-        lifted = np.empty((m, 3))
-        lifted[:, :2] = self.points_m
-        lifted[:, 2] = LIFT_Z
+        r2[:m] = np.asarray(self.ranges_m, dtype=np.float64) ** 2
+        order, start, geo = build_grid(pts[:, 0].copy(), pts[:, 1].copy(), GRID_CELL_M, GRID_MAX_CELLS)
+        packed = np.empty((m, 7))
+        packed[:, :2] = pts
+        packed[:, 2:4] = normals
+        packed[:, 4] = c_ext[:m]
+        packed[:, 5] = r2[:m]
+        packed[:, 6] = self.quality
+        packed = np.ascontiguousarray(packed[order])
         for name, a in (
             ("n_ext", n_ext),
             ("c_ext", c_ext),
             ("range2_ext", r2),
-            ("lifted", lifted),
-            ("rows", rows),
-            ("normals_t", normals_t),
+            ("packed", packed),
+            ("grid_order", order),
+            ("grid_start", start),
+            ("grid_geo", geo),
         ):
             a.setflags(write=False)
             object.__setattr__(self, name, a)
@@ -185,27 +213,19 @@ class PreparedScan:
         ok[:-1] = self.quality >= min_normal_quality
         return ok
 
-    def _usable_weights(self, min_normal_quality: float) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`usable` and the same as 0/1 floats, cached per threshold (read-only)."""
-        got = self._usable.get(min_normal_quality)
-        if got is None:
-            ok = self.usable(min_normal_quality)
-            okf = ok.astype(np.float64)
-            ok.setflags(write=False)
-            okf.setflags(write=False)
-            got = self._usable[min_normal_quality] = (ok, okf)
-        return got
-
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
-    """Build the KD-tree and PCA line normals of a target scan (once per reference)."""
+    """Build the KD-tree, PCA line normals and search grid of a target scan (once per reference).
+
+    Raises :class:`~factorloc.errors.InputError` on fewer than 3 points, non-finite points or coordinates
+    beyond :data:`MAX_COORDINATE_M`.
+    """
     pts = np.ascontiguousarray(np.asarray(points_m, dtype=np.float64))
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise InputError(f"target points_m must be N×2, got shape {pts.shape}")
     if len(pts) < 3:
         raise InputError(f"target scan needs >= 3 points, got {len(pts)}")
-    if not np.isfinite(pts).all():
-        raise InputError("target points_m contains NaN or infinite values")
+    _check_coordinates("target points_m", pts)
     if pts is points_m and pts.flags.writeable:
         pts = pts.copy()  # the caller's array stays writable; ours is frozen
     tree = KdTree2D(pts)
@@ -214,6 +234,20 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
     for a in (pts, normals, quality, ranges):
         a.setflags(write=False)
     return PreparedScan(pts, normals, quality, tree, ranges)
+
+
+MAX_COORDINATE_M = 1e9
+"""Largest absolute point coordinate :func:`align` and :func:`prepare_target` accept (m): far beyond any
+scan, and small enough that squared ranges and distances never overflow."""
+
+
+def _check_coordinates(name: str, pts: np.ndarray) -> None:
+    """InputError unless every coordinate is finite and within ±MAX_COORDINATE_M (one reduction)."""
+    top = float(np.abs(pts).max())  # NaN propagates
+    if not top <= MAX_COORDINATE_M:
+        if not np.isfinite(pts).all():
+            raise InputError(f"{name} contains NaN or infinite values")
+        raise InputError(f"{name} has a coordinate of {top!r} m, beyond ±{MAX_COORDINATE_M:g} m")
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,156 +291,101 @@ class IcpResult:
     variances_m2: np.ndarray
 
 
-def _linearize(
-    target: PreparedScan,
-    q: np.ndarray,
-    jj: np.ndarray,
+# indices of IcpParams._core
+_P_MAX_ITER, _P_MIN_GATE, _P_SHRINK, _P_CONV_T, _P_CONV_R, _P_FIT_D, _P_CAP, _P_QUALITY, _P_SP2, _P_SB2, _P_REASSOC = range(11)
+_DEFAULT_KERNEL = Cauchy(0.05)
+_SOURCE_CELL_M = 0.5  # cell side of the grid on the aligned source (the Chamfer distance's target half, bound: cap)
+
+
+@njit(cache=True)
+def _align_core(
+    tgt: np.ndarray,
+    start: np.ndarray,
+    geo: np.ndarray,
+    src: np.ndarray,
+    theta: float,
     tx: float,
     ty: float,
-    kernel: RobustKernel,
-    params: IcpParams,
-    var_src: np.ndarray | None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Jacobians (K×3), residuals (K,), IRLS weights (K,) and pair variances (K,) of the pairs ``q_i ↔ p_{jj_i}``.
+    prm: np.ndarray,
+    max_gate: float,
+    kcode: int,
+    kscale: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ICP of :func:`align`, compiled. ``tgt``, ``start``, ``geo``: :class:`PreparedScan`'s ``packed``,
+    ``grid_start``, ``grid_geo``; ``src`` (N×2, C-contiguous, finite, N ≥ 3); ``prm``: ``IcpParams._core``.
 
-    ``q`` (K×2 or K×3 lifted) are the paired source points in the target
-    frame, ``jj`` their target indices, ``(tx, ty)`` the source origin.
-    ``var_src`` (K,) the source points' noise variances, or None when the
-    noise model is the same for every pair (``sigma_bearing_rad = 0``): the
-    pair variance is then ``2·sigma_point_m²`` and the weight factor 1.
+    Returns ``info`` (18,) ``[θ, t_x, t_y, iterations, converged, fitness, rmse, chamfer, K, H (9, row
+    major)]``, ``J`` (K×3) and ``rwv`` (3×K: residuals, weights, variances) of the final linearisation.
     """
-    n = target.n_ext.take(jj, axis=0)
-    nx, ny = n[:, 0], n[:, 1]
-    qx, qy = q[:, 0], q[:, 1]
-    J = np.empty((len(jj), 3))
-    J[:, :2] = n
-    # r = n·q − n·p ; third Jacobian column nᵀ·perp(q − t) = n_y (q_x − t_x) − n_x (q_y − t_y)
-    r = nx * qx + ny * qy - target.c_ext.take(jj)
-    J[:, 2] = ny * (qx - tx) - nx * (qy - ty)
-    w = kernel.weight(r)
-    sp2 = params.sigma_point_m**2
-    if var_src is None:
-        return J, r, w, np.full(len(jj), sp2 + sp2)
-    var = var_src + sp2 + params.sigma_bearing_rad**2 * target.range2_ext.take(jj)
-    w = w * (2.0 * sp2 / var)
-    return J, r, w, var
-
-
-def align(
-    target: PreparedScan,
-    source_points_m: np.ndarray,
-    T_init: Pose2,
-    params: IcpParams = IcpParams(),
-    kernel: RobustKernel | None = None,
-    max_correspondence_m: float | None = None,
-) -> IcpResult:
-    """Align ``source_points_m`` (N×2, source frame) to ``target`` starting from ``T_init`` (source in target frame).
-
-    ``max_correspondence_m``, when given, replaces ``params.max_correspondence_m``
-    (the first gate; it must be ≥ ``params.min_correspondence_m``): a
-    per-call gate (e.g. from the seed's σ) without building an
-    :class:`IcpParams` per call (``dataclasses.replace`` and its validation
-    cost ~6 µs, as much as a Gauss–Newton iteration).
-
-    Returns the refined pose with fitness, RMSE, Chamfer distance and the
-    linearisation at the solution. Never fails silently: when fewer than 3
-    correspondences exist the result has ``n_inliers < 3``, ``converged =
-    False`` and a zero Hessian; the caller judges reliability. Raises
-    :class:`~factorloc.errors.InputError` on a malformed or non-finite source.
-
-    Cost. The iteration works on the source points lifted to homogeneous
-    ``[x, y, 1]`` (N×3, one matrix product per iteration moves them and
-    they are the KD-tree's query as they are). A search (``KdTree2D.nearest_lifted``,
-    one batched small_gicp query) gathers, per source point, the target's
-    residual coefficients (``PreparedScan.rows``) into a (2, N, 3) array;
-    each Gauss–Newton iteration is then one ``einsum`` for the residuals and
-    the rotation Jacobians, the kernel's weights and one (4×N)·(N×4) product
-    for the Hessian and gradient, whose rotation is moved from the target
-    origin to the source origin (``J_source = J_target · T``,
-    ``T = [[1, 0, t_y], [0, 1, −t_x], [0, 0, 1]]``, ``H ← Tᵀ H T``,
-    ``g ← Tᵀ g``) in scalar arithmetic. After convergence one more search
-    serves the final linearisation, the fitness and the source half of the
-    Chamfer distance, and a tree on the aligned source the target half.
-    """
-    src = np.asarray(source_points_m, dtype=np.float64)
-    if src.ndim != 2 or src.shape[1] != 2:
-        raise InputError(f"source_points_m must be N×2, got shape {src.shape}")
-    n_src = len(src)
-    if n_src < 3:
-        raise InputError(f"source scan needs >= 3 points, got {n_src}")
-    if not isinstance(T_init, Pose2):
-        raise InputError(f"T_init must be a Pose2, got {type(T_init).__name__}")
-    src_h = np.empty((n_src, 3))
-    src_h[:, :2] = src
-    src_h[:, 2] = LIFT_Z
-    if not np.isfinite(src_h).all():
-        raise InputError("source_points_m contains NaN or infinite values")
-    kernel = Cauchy(0.05) if kernel is None else kernel
-    usable, usable_f = target._usable_weights(params.min_normal_quality)
-    tree = target.tree
-    rows_t, normals_t = target.rows, target.normals_t
-    m_tgt = len(target)
-    src_r2 = src[:, 0] * src[:, 0] + src[:, 1] * src[:, 1]
-    rho_rms = math.sqrt(float(src_r2.mean()))
-    rho_max = math.sqrt(float(src_r2.max()))
-    sp2 = params.sigma_point_m**2
-    sb2 = params.sigma_bearing_rad**2
-    var_src = None if params.sigma_bearing_rad == 0.0 else sp2 + sb2 * src_r2
-    theta = T_init.theta
-    tx, ty = T_init.x, T_init.y
-    converged = False
-    it = 0
-    min_gate = params.min_correspondence_m
-    max_gate, shrink, reassociate_m = params.max_correspondence_m, params.shrink, params.reassociate_m
-    if max_correspondence_m is not None:
-        if not max_correspondence_m >= min_gate:
-            raise InputError(
-                f"max_correspondence_m must be >= params.min_correspondence_m ({min_gate!r}), got {max_correspondence_m!r}"
-            )
-        max_gate = float(max_correspondence_m)
-    conv_t, conv_r = params.convergence_translation_m, params.convergence_rotation_rad
-    A = np.zeros((3, 3))  # homogeneous motion: [x, y, 1] @ A = [R (x, y) + t, 1]
-    A[2, 2] = 1.0
-    Z = np.empty((4, n_src))  # rows: n_x, n_y, rotation Jacobian about the target origin, residual
-    rows = w_pair = None
+    n = src.shape[0]
+    m = tgt.shape[0]
+    max_iter = int(prm[_P_MAX_ITER])
+    min_gate, shrink = prm[_P_MIN_GATE], prm[_P_SHRINK]
+    conv_t, conv_r = prm[_P_CONV_T], prm[_P_CONV_R]
+    fit_d, cap, qthr = prm[_P_FIT_D], prm[_P_CAP], prm[_P_QUALITY]
+    sp2, sb2, reassociate_m = prm[_P_SP2], prm[_P_SB2], prm[_P_REASSOC]
+    noisy = sb2 != 0.0  # range-dependent noise: per-pair variances and weight factors
+    var_src = np.empty(n)
+    rho2s = 0.0
+    rho2m = 0.0
+    for i in range(n):
+        r2 = src[i, 0] * src[i, 0] + src[i, 1] * src[i, 1]
+        rho2s += r2
+        rho2m = max(rho2m, r2)
+        var_src[i] = sp2 + sb2 * r2
+    rho_rms = math.sqrt(rho2s / n)
+    rho_max = math.sqrt(rho2m)
+    jj = np.empty(n, np.int64)  # the associated packed target row, -1: none
+    wp = np.ones(n)  # the pair's weight factor 2 sp² / σ²_pair
+    qx = np.empty(n)
+    qy = np.empty(n)
     moved = math.inf  # largest point motion since the last association (m)
     last_gate = -1.0
-    for it in range(1, params.max_iterations + 1):
-        gate = max(min_gate, max_gate * shrink ** (it - 1))
+    converged = False
+    iters = 0
+    for it in range(1, max_iter + 1):
+        iters = it
+        gate = max(min_gate, max_gate * shrink ** float(it - 1))
         c, s = math.cos(theta), math.sin(theta)
-        A[0, 0] = c
-        A[0, 1] = s
-        A[1, 0] = -s
-        A[1, 1] = c
-        A[2, 0] = tx
-        A[2, 1] = ty
-        q3 = src_h @ A
+        for i in range(n):
+            qx[i] = c * src[i, 0] - s * src[i, 1] + tx
+            qy[i] = s * src[i, 0] + c * src[i, 1] + ty
         if gate != last_gate or moved > reassociate_m:
-            # one batched KD-tree query; every source point takes part, those without a usable target point within
-            # the gate with weight 0
-            d, j = tree.nearest_lifted(q3)
-            w_pair = usable_f.take(j)
-            w_pair *= d < gate
-            if np.count_nonzero(w_pair) < 3:
+            nok = 0
+            b2 = gate * gate * (1.0 + 1e-9)  # the exact test is sqrt(d²) < gate below
+            for i in range(n):
+                d2, k = grid_nearest(qx[i], qy[i], tgt, start, geo, b2)
+                if k >= 0 and math.sqrt(d2) < gate and tgt[k, 6] >= qthr:
+                    jj[i] = k
+                    nok += 1
+                    if noisy:
+                        wp[i] = 2.0 * sp2 / (var_src[i] + sp2 + sb2 * tgt[k, 5])
+                else:
+                    jj[i] = -1
+            if nok < 3:
                 break
-            if var_src is not None:
-                w_pair *= 2.0 * sp2 / (var_src + sp2 + sb2 * target.range2_ext.take(j))
-            rows = rows_t.take(j, axis=1)
-            normals_t.take(j, axis=1, out=Z[:2])
             moved, last_gate = 0.0, gate
-        np.einsum("kij,ij->ki", rows, q3, out=Z[2:])
-        w = kernel.weight(Z[3])
-        w *= w_pair
-        (b00, b01, b02, g0), (_, b11, b12, g1), (_, _, b22, g2), _ = ((Z * w) @ Z.T).tolist()
-        # rotation about the source origin t: J_source = J_target · T, T = [[1, 0, t_y], [0, 1, −t_x], [0, 0, 1]]
-        h02 = b00 * ty - b01 * tx + b02
-        h12 = b01 * ty - b11 * tx + b12
-        h22 = h02 * ty - h12 * tx + (b02 * ty - b12 * tx + b22)
-        g2 = g0 * ty - g1 * tx + g2
-        h00 = b00 + 1e-9
-        h11 = b11 + 1e-9
+        h00 = h01 = h02 = h11 = h12 = h22 = g0 = g1 = g2 = 0.0
+        for i in range(n):
+            k = jj[i]
+            if k < 0:
+                continue
+            ex, ey = tgt[k, 2], tgt[k, 3]
+            r = ex * qx[i] + ey * qy[i] - tgt[k, 4]
+            j2 = ey * (qx[i] - tx) - ex * (qy[i] - ty)
+            w = weight_scalar(kcode, kscale, r) * wp[i]
+            h00 += w * ex * ex
+            h01 += w * ex * ey
+            h02 += w * ex * j2
+            h11 += w * ey * ey
+            h12 += w * ey * j2
+            h22 += w * j2 * j2
+            g0 += w * ex * r
+            g1 += w * ey * r
+            g2 += w * j2 * r
+        h00 += 1e-9
+        h11 += 1e-9
         h22 += 1e-9
-        h01 = b01
         # δ = −H⁻¹ g for the symmetric 3×3 H (cofactors)
         c00 = h11 * h22 - h12 * h12
         c01 = h02 * h12 - h01 * h22
@@ -425,7 +404,6 @@ def align(
         if step > gate:
             f = gate / step
             dx, dy, dth = dx * f, dy * f, dth * f
-        # apply: rotate about the source origin t, then translate
         theta += dth
         tx += dx
         ty += dy
@@ -433,41 +411,160 @@ def align(
         if gate <= min_gate and math.hypot(dx, dy) < conv_t and abs(dth) < conv_r:
             converged = True
             break
-    T = Pose2(tx, ty, theta)
-    c, s = math.cos(T.theta), math.sin(T.theta)
-    A[0, 0] = c
-    A[0, 1] = s
-    A[1, 0] = -s
-    A[1, 1] = c
-    A[2, 0] = tx
-    A[2, 1] = ty
-    q3 = src_h @ A
-    cap = params.chamfer_cap_m
-    d_src, j = tree.nearest_lifted(q3)
-    # the final linearisation: fresh neighbours at the smallest gate
-    sel = np.flatnonzero(usable.take(j) & (d_src < min_gate))
-    J, r, w, var = _linearize(
-        target, q3.take(sel, axis=0), j.take(sel), tx, ty, kernel, params, None if var_src is None else var_src.take(sel)
+    # the final linearisation with fresh neighbours at the smallest gate, the fitness, the source half of the
+    # Chamfer distance; a search bound that covers all three
+    bound = max(min_gate, fit_d, cap)
+    b2 = bound * bound * (1.0 + 1e-9)
+    c, s = math.cos(theta), math.sin(theta)
+    J = np.empty((n, 3))
+    rwv = np.empty((3, n))
+    H = np.zeros(6)
+    nfit = 0
+    ksel = 0
+    sum_src = 0.0
+    sum_in = 0.0
+    n_in = 0
+    for i in range(n):
+        qx[i] = c * src[i, 0] - s * src[i, 1] + tx
+        qy[i] = s * src[i, 0] + c * src[i, 1] + ty
+        d2, k = grid_nearest(qx[i], qy[i], tgt, start, geo, b2)
+        d = math.sqrt(d2) if k >= 0 else math.inf
+        if d < fit_d:
+            nfit += 1
+        sum_src += min(d, cap)
+        if k >= 0 and d < min_gate and tgt[k, 6] >= qthr:
+            ex, ey = tgt[k, 2], tgt[k, 3]
+            r = ex * qx[i] + ey * qy[i] - tgt[k, 4]
+            j2 = ey * (qx[i] - tx) - ex * (qy[i] - ty)
+            w = weight_scalar(kcode, kscale, r)
+            if noisy:
+                var = var_src[i] + sp2 + sb2 * tgt[k, 5]
+                w = w * (2.0 * sp2 / var)
+            else:
+                var = sp2 + sp2
+            J[ksel, 0], J[ksel, 1], J[ksel, 2] = ex, ey, j2
+            rwv[0, ksel], rwv[1, ksel], rwv[2, ksel] = r, w, var
+            H[0] += w * ex * ex
+            H[1] += w * ex * ey
+            H[2] += w * ex * j2
+            H[3] += w * ey * ey
+            H[4] += w * ey * j2
+            H[5] += w * j2 * j2
+            if abs(r) < fit_d:
+                sum_in += r * r
+                n_in += 1
+            ksel += 1
+    # the target half of the Chamfer distance: a grid on the aligned source
+    q = np.empty((n, 2))
+    order, sstart, sgeo = build_grid(qx, qy, _SOURCE_CELL_M, 4 * n + 64)
+    for k in range(n):
+        q[k, 0] = qx[order[k]]
+        q[k, 1] = qy[order[k]]
+    sum_tgt = 0.0
+    cap2 = cap * cap * (1.0 + 1e-9)
+    for j in range(m):
+        d2, k = grid_nearest(tgt[j, 0], tgt[j, 1], q, sstart, sgeo, cap2)
+        sum_tgt += min(math.sqrt(d2), cap) if k >= 0 else cap
+    info = np.empty(18)
+    info[0], info[1], info[2], info[3] = theta, tx, ty, iters
+    info[4] = 1.0 if converged and ksel >= 3 else 0.0
+    info[5] = nfit / n
+    info[6] = math.sqrt(sum_in / n_in) if n_in > 0 else math.inf
+    info[7] = 0.5 * (sum_src / n + sum_tgt / m)
+    info[8] = ksel
+    info[9], info[10], info[11] = H[0], H[1], H[2]
+    info[12], info[13], info[14] = H[1], H[3], H[4]
+    info[15], info[16], info[17] = H[2], H[4], H[5]
+    return info, J[:ksel].copy(), rwv[:, :ksel].copy()
+
+
+def align(
+    target: PreparedScan,
+    source_points_m: np.ndarray,
+    T_init: Pose2,
+    params: IcpParams = IcpParams(),
+    kernel: RobustKernel | None = None,
+    max_correspondence_m: float | None = None,
+) -> IcpResult:
+    """Align ``source_points_m`` (N×2, source frame) to ``target`` starting from ``T_init`` (source in target frame).
+
+    ``kernel`` is one of :mod:`~factorloc.registration.kernels`' (default ``Cauchy(0.05)``).
+    ``max_correspondence_m``, when given, replaces ``params.max_correspondence_m``
+    (the first gate; it must be ≥ ``params.min_correspondence_m``): a
+    per-call gate (e.g. from the seed's σ) without building an
+    :class:`IcpParams` per call.
+
+    Returns the refined pose with fitness, RMSE, Chamfer distance and the
+    linearisation at the solution. Never fails silently: when fewer than 3
+    correspondences exist the result has ``n_inliers < 3``, ``converged =
+    False`` and a zero Hessian; the caller judges reliability. Raises
+    :class:`~factorloc.errors.InputError` on a malformed or non-finite source
+    (or coordinates beyond :data:`MAX_COORDINATE_M`) before any compiled code runs.
+
+    Cost. The iterations run compiled (numba, one core): per association
+    an exact nearest-neighbour search on the target's uniform grid
+    (:func:`~factorloc.registration.nn.grid_nearest`, bounded by the gate),
+    per Gauss–Newton iteration one pass over the pairs that accumulates
+    ``H = Σ w_i J_iᵀJ_i`` and ``g = Σ w_i J_i r_i`` and a 3×3 cofactor solve.
+    After convergence one more search (bounded by the largest of the smallest
+    gate, ``fitness_distance_m`` and ``chamfer_cap_m``) serves the final
+    linearisation, the fitness and the source half of the Chamfer distance,
+    and a grid on the aligned source the target half. About 0.1 ms for 180
+    points against 180 (``benchmarks/bench_align.py``).
+    """
+    src = np.asarray(source_points_m, dtype=np.float64)
+    if src.ndim != 2 or src.shape[1] != 2:
+        raise InputError(f"source_points_m must be N×2, got shape {src.shape}")
+    if len(src) < 3:
+        raise InputError(f"source scan needs >= 3 points, got {len(src)}")
+    if not isinstance(T_init, Pose2):
+        raise InputError(f"T_init must be a Pose2, got {type(T_init).__name__}")
+    if not isinstance(target, PreparedScan):
+        raise InputError(f"target must be a PreparedScan (prepare_target), got {type(target).__name__}")
+    _check_coordinates("source_points_m", src)
+    if not src.flags.c_contiguous:
+        src = np.ascontiguousarray(src)
+    if kernel is None:
+        kernel = _DEFAULT_KERNEL
+    kcode = getattr(kernel, "code", None)
+    if type(kcode) is not int:
+        raise InputError(f"kernel must be one of factorloc.registration.kernels' (L2, Huber, Cauchy, Tukey), got {kernel!r}")
+    max_gate = params.max_correspondence_m
+    if max_correspondence_m is not None:
+        if not max_correspondence_m >= params.min_correspondence_m:
+            raise InputError(
+                f"max_correspondence_m must be >= params.min_correspondence_m ({params.min_correspondence_m!r}), "
+                f"got {max_correspondence_m!r}"
+            )
+        max_gate = float(max_correspondence_m)
+    info, J, rwv = _align_core(
+        target.packed,
+        target.grid_start,
+        target.grid_geo,
+        src,
+        T_init.theta,
+        T_init.x,
+        T_init.y,
+        params._core,
+        max_gate,
+        kcode,
+        kernel.scale_m,
     )
-    H = (J.T * w) @ J
-    fitness = float(np.count_nonzero(d_src < params.fitness_distance_m)) / n_src
-    rin = r[np.abs(r) < params.fitness_distance_m]
-    rmse = math.sqrt(float(rin @ rin) / len(rin)) if len(rin) else math.inf
-    d_tgt, _ = KdTree2D.from_lifted(q3).nearest_lifted(target.lifted)
-    chamfer = 0.5 * (float(np.minimum(d_src, cap).sum()) / n_src + float(np.minimum(d_tgt, cap).sum()) / m_tgt)
-    for a in (H, J, r, w, var):
+    th, x, y, iters, conv, fitness, rmse, chamfer, k = info[:9].tolist()
+    H = info[9:].reshape(3, 3)
+    for a in (H, J, rwv):
         a.setflags(write=False)
     return IcpResult(
-        T_target_source=T,
-        iterations=it,
-        converged=converged and len(r) >= 3,
+        T_target_source=Pose2(x, y, th),
+        iterations=int(iters),
+        converged=conv == 1.0,
         fitness=fitness,
         rmse_m=rmse,
         chamfer_m=chamfer,
-        n_inliers=int(len(r)),
+        n_inliers=int(k),
         hessian=H,
         jacobians=J,
-        residuals_m=r,
-        weights=w,
-        variances_m2=var,
+        residuals_m=rwv[0],
+        weights=rwv[1],
+        variances_m2=rwv[2],
     )

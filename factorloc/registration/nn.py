@@ -16,7 +16,10 @@ are exact, so the results are the same (up to ties between equidistant neighbour
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
@@ -26,7 +29,7 @@ try:  # optional accelerator, exact like cKDTree
 except ImportError:  # pragma: no cover - depends on the environment
     _small_gicp = None
 
-__all__ = ["LIFT_Z", "KdTree2D", "fast_backend", "lift_2d"]
+__all__ = ["GRID_CELL_M", "GRID_MAX_CELLS", "LIFT_Z", "KdTree2D", "build_grid", "fast_backend", "grid_nearest", "lift_2d"]
 
 
 def fast_backend() -> bool:
@@ -142,3 +145,116 @@ class KdTree2D:
             d[miss] = np.inf
             idx[miss] = self.n
         return d, idx
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# uniform grid, compiled: the nearest-neighbour search of the ICP core (factorloc.registration.icp2d)
+# --------------------------------------------------------------------------------------------------------------------
+GRID_CELL_M = 0.3
+"""Default cell side of :func:`build_grid` (m): about the ICP gates, so that a search within a gate reads the 3×3
+cells around the query (a 180-point laser scan puts 1–3 points in a cell along its walls)."""
+
+GRID_MAX_CELLS = 1 << 18
+"""Largest cell count of a grid: wider scans get larger cells (the search stays exact, only slower), so that
+memory stays bounded whatever the coordinates (2 MB of cell offsets at most)."""
+
+
+@njit(cache=True)
+def build_grid(x: np.ndarray, y: np.ndarray, cell_m: float, max_cells: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A uniform grid over M points (``x``, ``y``: (M,) m, finite, M ≥ 1) for :func:`grid_nearest`.
+
+    Returns ``order`` (M,) int64, the point indices sorted by cell (within a cell by index); ``start``
+    (G+1,) int64, the cell ``c = ix·gy + iy`` holds ``order[start[c]:start[c+1]]``; ``geo`` (6,) float64
+    ``[x0, y0, h, gx, gy, slack]``: origin, cell side (``cell_m`` doubled until ``gx·gy ≤ max_cells``),
+    cell counts, and a bound on the rounding of a point's cell (m) that the search adds to its distance bounds.
+    """
+    m = len(x)
+    xmin, xmax, ymin, ymax = x[0], x[0], y[0], y[0]
+    for i in range(1, m):
+        xmin = min(xmin, x[i])
+        xmax = max(xmax, x[i])
+        ymin = min(ymin, y[i])
+        ymax = max(ymax, y[i])
+    sx, sy = xmax - xmin, ymax - ymin
+    h = cell_m
+    while (sx / h + 1.0) * (sy / h + 1.0) > max_cells:
+        h *= 2.0
+    gx = min(int(sx / h) + 1, max_cells)
+    gy = min(int(sy / h) + 1, max_cells)
+    cell = np.empty(m, np.int64)
+    start = np.zeros(gx * gy + 1, np.int64)
+    for i in range(m):
+        ix = min(max(int((x[i] - xmin) / h), 0), gx - 1)
+        iy = min(max(int((y[i] - ymin) / h), 0), gy - 1)
+        c = ix * gy + iy
+        cell[i] = c
+        start[c + 1] += 1
+    for c in range(gx * gy):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(m, np.int64)
+    for i in range(m):
+        order[fill[cell[i]]] = i
+        fill[cell[i]] += 1
+    geo = np.empty(6)
+    geo[0], geo[1], geo[2], geo[3], geo[4] = xmin, ymin, h, gx, gy
+    geo[5] = 1e-9 * (h + abs(xmin) + abs(ymin) + sx + sy)
+    return order, start, geo
+
+
+@njit(cache=True, inline="always")
+def grid_nearest(qx: float, qy: float, pts: np.ndarray, start: np.ndarray, geo: np.ndarray, bound2: float) -> tuple[float, int]:
+    """Exact nearest neighbour of ``(qx, qy)`` closer than ``sqrt(bound2)`` among the grid's points.
+
+    ``pts`` (M, ≥2) holds the points in the grid's cell order (row k = point ``order[k]`` of
+    :func:`build_grid`), ``start`` and ``geo`` as it returns them. Returns ``(d², k)`` with ``k`` the row
+    in ``pts``, or ``(inf, -1)`` when no point is closer than the bound. Rings of cells around the query's
+    cell are read nearest first until a ring cannot hold a closer point: ring ``r ≥ 2`` is at least
+    ``(r − 1)·h − slack`` away. A query outside the grid is clamped to the cells around it, which only
+    lowers these bounds (every cell lies on the grid's side), so the search stays exact.
+    """
+    x0, y0, h, slack = geo[0], geo[1], geo[2], geo[5]
+    gx, gy = int(geo[3]), int(geo[4])
+    fx = (qx - x0) / h
+    fy = (qy - y0) / h
+    if not (fx == fx and fy == fy):
+        return math.inf, -1
+    # distance from the query to the grid's box: nothing to find beyond the bound
+    bx = -fx * h if fx < 0.0 else ((fx - gx) * h if fx > gx else 0.0)
+    by = -fy * h if fy < 0.0 else ((fy - gy) * h if fy > gy else 0.0)
+    bx = max(bx - slack, 0.0)
+    by = max(by - slack, 0.0)
+    if bx * bx + by * by >= bound2:
+        return math.inf, -1
+    cx = int(math.floor(min(max(fx, -1.0), float(gx))))
+    cy = int(math.floor(min(max(fy, -1.0), float(gy))))
+    best, bk = bound2, -1
+    rmax = max(gx, gy) + 2
+    for rr in range(rmax):
+        if rr >= 2:
+            lo = (rr - 1) * h - slack
+            if lo > 0.0 and lo * lo >= best:
+                break
+        ix0, ix1 = cx - rr, cx + rr
+        iy0, iy1 = cy - rr, cy + rr
+        if rr > 0 and ix0 + 1 <= 0 and iy0 + 1 <= 0 and ix1 - 1 >= gx - 1 and iy1 - 1 >= gy - 1:
+            break  # the previous rings covered the whole grid
+        for ix in range(max(ix0, 0), min(ix1, gx - 1) + 1):
+            edge = ix == ix0 or ix == ix1
+            iy = iy0
+            while iy <= iy1:
+                if 0 <= iy < gy:
+                    c = ix * gy + iy
+                    for k in range(start[c], start[c + 1]):
+                        dx = pts[k, 0] - qx
+                        dy = pts[k, 1] - qy
+                        d2 = dx * dx + dy * dy
+                        if d2 < best:
+                            best, bk = d2, k
+                if edge or rr == 0:
+                    iy += 1
+                else:
+                    iy += iy1 - iy0
+    if bk < 0:
+        return math.inf, -1
+    return best, bk
