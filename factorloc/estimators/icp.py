@@ -42,6 +42,7 @@ from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from factorloc.errors import ConfigError, InputError
@@ -392,6 +393,35 @@ def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, 
     return max(v_q, v_r)
 
 
+def _overlap_fitness(
+    prepared: IcpReference, points: np.ndarray, profile: np.ndarray, T: Pose2, config: IcpConfig
+) -> tuple[float, int]:
+    """Fitness over the points each scan's sensor could have seen, the smaller of the two directions, and that count.
+
+    A point of one scan, put in the other sensor's frame, is *visible* to that sensor when its bearing lies in a
+    bin with a return (inside the field of view) and it is not farther than that bin's free range (not hidden
+    behind what the sensor saw); it fits when a point of the other scan lies within ``fitness_distance_m``.
+    """
+    d = config.icp.fitness_distance_m
+    out = []
+    q_in_r = T.transform_points(points)
+    r_in_q = T.inverse().transform_points(prepared.points_m)
+    for pts, prof, other in ((q_in_r, prepared.profile, prepared.points_m), (r_in_q, profile, points)):
+        n_bins = len(prof)
+        b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64) % n_bins
+        free = prof[b]
+        rho = np.hypot(pts[:, 0], pts[:, 1])
+        vis = np.isfinite(free) & (rho <= free + np.maximum(0.15, 0.05 * np.nan_to_num(free)))
+        n = int(vis.sum())
+        if n == 0:
+            out.append((0.0, 0))
+            continue
+        dist, _ = cKDTree(other).query(pts[vis], distance_upper_bound=d)
+        out.append((float(np.mean(dist < d)), n))
+    (f1, n1), (f2, n2) = out
+    return min(f1, f2), min(n1, n2)
+
+
 def constraint_strength(result: IcpResult) -> float:
     """Smallest eigenvalue of the mean weighted normal scatter ``Σ wᵢ nᵢnᵢᵀ / Σ wᵢ``.
 
@@ -565,7 +595,12 @@ def estimate(
         ``fitness``, ``rmse_m``, ``chamfer_m``, ``iterations``, ``n_inliers``,
         ``used_global_init``, ``seeded``, ``violation`` (free-space; NaN when not computed because the
         seeded result already failed a cheaper test), ``constraint``, ``global_score``, ``rival_score``,
-        ``sigma_chamfer_m`` (the patent's isotropic σ), ``T_reference_query``.
+        ``sigma_chamfer_m`` (the patent's isotropic σ), ``T_reference_query``; ``seeded_fitness`` and
+        ``seeded_violation`` (the seeded attempt's, kept when a global result replaces it), ``seed_misfit`` (only
+        when the seeded alignment put more than ``max_violation`` of the scan into seen-free space: the scan
+        refutes the seed), and after a global initialization ``overlap_fitness`` / ``overlap_points`` (the
+        fitness over the points each sensor could have seen, the smaller direction, and that count; a
+        diagnostic for partially overlapping 180° scans, not used in the verdict).
     """
     if not isinstance(prepared, IcpReference):
         raise InputError(f"prepared must be an IcpReference, got {type(prepared).__name__}")
@@ -737,6 +772,11 @@ def estimate(
         "sigma_chamfer_m": s_ch,
         "T_reference_query": result.T_target_source.as_array(),
     }
+    if used_global:
+        prof_q = profile if profile is not None else polar_profile(pts, gap_free_m=config.gap_free_m)
+        diagnostics["overlap_fitness"], diagnostics["overlap_points"] = _overlap_fitness(
+            prepared, pts, prof_q, result.T_target_source, config
+        )
     if seeded and not math.isnan(seeded_fit[1]) and seeded_fit[1] > config.max_violation:
         # for the seed audit of the pipeline (factorloc.gating): the scan contradicts the seed itself
         diagnostics["seed_misfit"] = (
