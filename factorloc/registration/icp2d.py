@@ -33,7 +33,7 @@ from numba import njit
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.kernels import Cauchy, RobustKernel, weight_scalar
-from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest
+from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, grid_nearest2
 from factorloc.registration.scan2d import estimate_normals_2d
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
@@ -298,6 +298,50 @@ _SOURCE_CELL_M = 0.5  # cell side of the grid on the aligned source (the Chamfer
 
 
 @njit(cache=True)
+def _refresh(
+    qx: np.ndarray,
+    qy: np.ndarray,
+    tgt: np.ndarray,
+    start: np.ndarray,
+    geo: np.ndarray,
+    bound: float,
+    delta: float,
+    eps: float,
+    nk: np.ndarray,
+    nd: np.ndarray,
+    nD: np.ndarray,
+) -> None:
+    """Exact nearest neighbours (within ``bound``) of the points ``(qx, qy)`` that moved by at most ``delta``
+    since the last call, in place: ``nk`` the packed row (-1: none closer than ``bound``), ``nd`` its distance
+    (inf: none), ``nD`` a lower bound on the distance of every other point.
+
+    A point keeps its neighbour without a search while that neighbour's new distance stays below
+    ``nD − delta − eps`` (every other point has come at most ``delta`` closer); a point without neighbour
+    keeps none while ``nD − delta − eps ≥ bound``. The others are searched
+    (:func:`~factorloc.registration.nn.grid_nearest2`). The result is the one of a search for every point.
+    """
+    b2 = bound * bound * (1.0 + 1e-9)  # the callers test d < gate themselves
+    for i in range(len(qx)):
+        k = nk[i]
+        lower = nD[i] - delta
+        if k >= 0:
+            dx = tgt[k, 0] - qx[i]
+            dy = tgt[k, 1] - qy[i]
+            d = math.sqrt(dx * dx + dy * dy)
+            if d < lower - eps:
+                nd[i] = d
+                nD[i] = lower
+                continue
+        elif lower - eps >= bound:
+            nD[i] = lower
+            continue
+        d2, k, second = grid_nearest2(qx[i], qy[i], tgt, start, geo, b2)
+        nk[i] = k
+        nd[i] = math.sqrt(d2) if k >= 0 else math.inf
+        nD[i] = math.sqrt(second)
+
+
+@njit(cache=True)
 def _align_core(
     tgt: np.ndarray,
     start: np.ndarray,
@@ -336,6 +380,10 @@ def _align_core(
     rho_rms = math.sqrt(rho2s / n)
     rho_max = math.sqrt(rho2m)
     jj = np.empty(n, np.int64)  # the associated packed target row, -1: none
+    # nearest neighbours kept between searches (_refresh): packed row (-1: none), distance, bound on the others'
+    nk = np.full(n, -1, np.int64)
+    nd = np.full(n, math.inf)
+    nD = np.full(n, -math.inf)
     wp = np.ones(n)  # the pair's weight factor 2 sp² / σ²_pair
     qx = np.empty(n)
     qy = np.empty(n)
@@ -351,11 +399,11 @@ def _align_core(
             qx[i] = c * src[i, 0] - s * src[i, 1] + tx
             qy[i] = s * src[i, 0] + c * src[i, 1] + ty
         if gate != last_gate or moved > reassociate_m:
+            _refresh(qx, qy, tgt, start, geo, gate, moved, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
             nok = 0
-            b2 = gate * gate * (1.0 + 1e-9)  # the exact test is sqrt(d²) < gate below
             for i in range(n):
-                d2, k = grid_nearest(qx[i], qy[i], tgt, start, geo, b2)
-                if k >= 0 and math.sqrt(d2) < gate and tgt[k, 6] >= qthr:
+                k = nk[i]
+                if k >= 0 and nd[i] < gate and tgt[k, 6] >= qthr:
                     jj[i] = k
                     nok += 1
                     if noisy:
@@ -414,8 +462,11 @@ def _align_core(
     # the final linearisation with fresh neighbours at the smallest gate, the fitness, the source half of the
     # Chamfer distance; a search bound that covers all three
     bound = max(min_gate, fit_d, cap)
-    b2 = bound * bound * (1.0 + 1e-9)
     c, s = math.cos(theta), math.sin(theta)
+    for i in range(n):
+        qx[i] = c * src[i, 0] - s * src[i, 1] + tx
+        qy[i] = s * src[i, 0] + c * src[i, 1] + ty
+    _refresh(qx, qy, tgt, start, geo, bound, moved, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
     J = np.empty((n, 3))
     rwv = np.empty((3, n))
     H = np.zeros(6)
@@ -425,10 +476,8 @@ def _align_core(
     sum_in = 0.0
     n_in = 0
     for i in range(n):
-        qx[i] = c * src[i, 0] - s * src[i, 1] + tx
-        qy[i] = s * src[i, 0] + c * src[i, 1] + ty
-        d2, k = grid_nearest(qx[i], qy[i], tgt, start, geo, b2)
-        d = math.sqrt(d2) if k >= 0 else math.inf
+        k = nk[i]
+        d = nd[i]
         if d < fit_d:
             nfit += 1
         sum_src += min(d, cap)
