@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
-from factorloc.registration.icp2d import IcpParams, align, prepare_target
+from factorloc.registration.icp2d import IcpParams, PreparedScan, align, prepare_target
 from factorloc.registration.kernels import L2, Cauchy, Huber, Tukey
 from factorloc.registration.open3d_peer import open3d_icp
 
@@ -69,7 +69,7 @@ def test_align_rejects_malformed_input(room_points: np.ndarray) -> None:
 # --------------------------------------------------------------------------
 # the fast align against a plain reference implementation of the same algorithm
 # --------------------------------------------------------------------------
-def _reference_align(target, src, T_init: Pose2, params: IcpParams, kernel) -> dict:
+def _reference_align(target, src, T_init: Pose2, params: IcpParams, kernel, max_gate: float | None = None) -> dict:
     """The ICP of :func:`align` written plainly (one cKDTree-semantics query per association, the rotation
     Jacobian about the source origin built per point, ``numpy.linalg.solve``): the slow, readable twin that the
     vectorized implementation must reproduce."""
@@ -80,8 +80,9 @@ def _reference_align(target, src, T_init: Pose2, params: IcpParams, kernel) -> d
     var_src = sp2 + sb2 * rho2
     theta, t = T_init.theta, np.array([T_init.x, T_init.y])
     converged, it, moved, last_gate = False, 0, math.inf, -1.0
+    max_gate = params.max_correspondence_m if max_gate is None else max_gate
     for it in range(1, params.max_iterations + 1):
-        gate = max(params.min_correspondence_m, params.max_correspondence_m * params.shrink ** (it - 1))
+        gate = max(params.min_correspondence_m, max_gate * params.shrink ** (it - 1))
         q = src @ np.array([[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]]).T + t
         if gate != last_gate or moved > params.reassociate_m:
             _, j = target.tree.query(q, k=1, distance_upper_bound=gate)
@@ -162,6 +163,20 @@ PARAMS = {
         min_correspondence_m=0.1, convergence_translation_m=1e-3, convergence_rotation_rad=3e-4, reassociate_m=0.01
     ),
     "range-dependent noise": IcpParams(sigma_bearing_rad=0.003, max_correspondence_m=0.4),
+    "fixed gate, never reassociated, 3 iterations": IcpParams(
+        max_correspondence_m=0.3, min_correspondence_m=0.3, shrink=1.0, reassociate_m=math.inf, max_iterations=3
+    ),
+    "wide slow gate, tight convergence, strict normals": IcpParams(
+        max_correspondence_m=2.5,
+        shrink=0.9,
+        convergence_translation_m=1e-6,
+        convergence_rotation_rad=1e-7,
+        min_normal_quality=0.9,
+        fitness_distance_m=0.05,
+        chamfer_cap_m=0.2,
+        sigma_bearing_rad=0.01,
+        reassociate_m=0.05,
+    ),
 }
 KERNELS = {"cauchy": Cauchy(0.05), "huber": Huber(0.03), "tukey": Tukey(0.1), "l2": L2()}
 
@@ -180,15 +195,58 @@ def test_align_reproduces_the_reference_implementation_on_random_scenes(params: 
         _assert_same(align(target, src, seed, params, kernel), _reference_align(target, src, seed, params, kernel))
 
 
-def test_align_reproduces_the_reference_implementation_on_degenerate_scenes(room_points, corridor_points) -> None:
+@pytest.mark.parametrize("kernel", list(KERNELS.values()), ids=list(KERNELS))
+def test_align_reproduces_the_reference_implementation_on_degenerate_scenes(room_points, corridor_points, kernel) -> None:
     rng = np.random.default_rng(5)
     line = np.column_stack([np.linspace(-3, 3, 200), np.full(200, 2.0)])  # one wall: collinear points
     twice = np.vstack([room_points[::3], room_points[::3]])  # every point duplicated
     for pts in (line, corridor_points[::5], twice):
-        target = prepare_target(pts)
-        src = Pose2(0.05, -0.02, 0.01).inverse().transform_points(pts[::2]) + rng.normal(0.0, 0.003, pts[::2].shape)
-        res = align(target, src, Pose2(), IcpParams(), Cauchy(0.05))
-        _assert_same(res, _reference_align(target, src, Pose2(), IcpParams(), Cauchy(0.05)))
+        for params in (IcpParams(), PARAMS["range-dependent noise"]):
+            target = prepare_target(pts, params)
+            src = Pose2(0.05, -0.02, 0.01).inverse().transform_points(pts[::2])
+            src = src + rng.normal(0.0, 0.003, src.shape)
+            _assert_same(align(target, src, Pose2(), params, kernel), _reference_align(target, src, Pose2(), params, kernel))
+
+
+def test_align_reproduces_the_reference_implementation_far_from_the_seed(room_points) -> None:
+    """Seeds off by up to a metre and 30°: the trust region clips the first steps, the gate override and the
+    shrinking gate decide which points pair up."""
+    rng = np.random.default_rng(8)
+    target = prepare_target(room_points)
+    src = _query(room_points, rng)
+    for k in range(8):
+        seed = Pose2(TRUE.x + rng.normal(0, 0.5), TRUE.y + rng.normal(0, 0.5), TRUE.theta + rng.normal(0, 0.3))
+        gate = [None, 0.3, 1.5, 3.0][k % 4]
+        for kernel in (Cauchy(0.05), L2()):
+            res = align(target, src, seed, IcpParams(), kernel, max_correspondence_m=gate)
+            _assert_same(res, _reference_align(target, src, seed, IcpParams(), kernel, max_gate=gate))
+
+
+def test_align_handles_degenerate_inputs_like_the_reference(room_points) -> None:
+    """Three points, a scan far from the target, identical points, a room 1000 km from its origin: a result
+    (no crash), the reference's result."""
+    params = IcpParams()
+    one_spot = np.tile([[1.0, 2.0]], (20, 1))
+    target = prepare_target(room_points)
+    off = np.array([1e6, -1e6])
+    cases = [
+        (target, room_points[[0, 150, 300]], Pose2()),  # three points
+        (target, room_points[::5], Pose2(1e8, -1e8, 1.0)),  # the seed puts the scan 1e8 m away
+        (prepare_target(one_spot), room_points[::5], Pose2()),  # all target points identical
+        (prepare_target(one_spot), one_spot[:5] - [1.0, 2.0], Pose2(1.0, 2.0, 0.0)),  # both
+        (prepare_target(room_points + off), room_points[::5], Pose2(1e6 + 0.03, -1e6 - 0.02, 0.01)),
+    ]
+    for tgt, src, seed in cases:
+        _assert_same(align(tgt, src, seed, params), _reference_align(tgt, src, seed, params, Cauchy(0.05)))
+    far = align(target, room_points[::5], Pose2(1e8, -1e8, 1.0))
+    assert far.fitness == 0.0 and far.n_inliers == 0 and far.chamfer_m == pytest.approx(0.5)
+    shifted = align(*cases[-1][:2], cases[-1][2], params).T_target_source
+    assert abs(shifted.x - 1e6) < 1e-6 and abs(shifted.y + 1e6) < 1e-6 and abs(shifted.theta) < 1e-9
+    # every source point at one spot: H has rank 1 (only the 1e-9 regulariser elsewhere), so the pose is not
+    # reproducible to 1e-9 — but the result is finite and the 20 identical pairs agree
+    spot = align(target, one_spot, Pose2(), params)
+    assert np.isfinite(spot.T_target_source.as_array()).all() and np.isfinite(spot.hessian).all()
+    assert spot.n_inliers == 20 and np.ptp(spot.residuals_m) == 0.0
 
 
 def test_align_rejects_non_finite_points(room_points: np.ndarray) -> None:
@@ -199,17 +257,58 @@ def test_align_rejects_non_finite_points(room_points: np.ndarray) -> None:
         align(target, src, Pose2())
     with pytest.raises(InputError, match="NaN"):
         prepare_target(src)
+    src[3, 1] = -np.inf
+    with pytest.raises(InputError, match="infinite"):
+        align(target, src, Pose2())
 
 
-@pytest.fixture(scope="module")
-def intel_pairs(shared_data) -> list[tuple[np.ndarray, np.ndarray, Pose2]]:
-    """(reference scan, query scan, odometry seed) of every 25th Intel relation whose robot moved < 5 m."""
+def test_align_rejects_empty_tiny_huge_and_foreign_inputs(room_points: np.ndarray) -> None:
+    target = prepare_target(room_points)
+    for bad in (np.zeros((0, 2)), np.zeros((1, 2)), np.zeros(6), np.zeros((4, 2, 1))):
+        with pytest.raises(InputError, match="N×2|>= 3 points"):
+            align(target, bad, Pose2())
+        with pytest.raises(InputError, match="N×2|>= 3 points"):
+            prepare_target(bad)
+    with pytest.raises(InputError, match="beyond"):
+        align(target, room_points[::4] + 2e9, Pose2())
+    with pytest.raises(InputError, match="beyond"):
+        prepare_target(room_points * 1e10)
+    with pytest.raises(InputError, match="T_init"):
+        align(target, room_points[::4], (0.0, 0.0, 0.0))
+
+    class Geman:  # a RobustKernel the compiled core does not know
+        def weight(self, r):
+            return 1.0 / (1.0 + r * r) ** 2
+
+    with pytest.raises(InputError, match="kernel must be one of"):
+        align(target, room_points[::4], Pose2(), IcpParams(), Geman())
+    with pytest.raises(InputError, match="PreparedScan.normals"):
+        PreparedScan(target.points_m, target.normals[:-1], target.quality, target.tree, target.ranges_m)
+
+
+def test_align_accepts_strided_integer_and_float32_sources(room_points: np.ndarray) -> None:
+    target = prepare_target(room_points)
+    src = _query(room_points, np.random.default_rng(4))
+    seed = Pose2(TRUE.x + 0.05, TRUE.y, TRUE.theta)
+    ref = align(target, np.ascontiguousarray(src), seed)
+    strided = np.asfortranarray(src)
+    assert not strided.flags.c_contiguous
+    np.testing.assert_array_equal(align(target, strided, seed).T_target_source.as_array(), ref.T_target_source.as_array())
+    f32 = align(target, src.astype(np.float32), seed).T_target_source
+    assert abs(f32.x - ref.T_target_source.x) < 1e-4
+    grid = np.round(room_points[::4] * 50).astype(np.int64)  # integer coordinates (2 cm units)
+    assert align(prepare_target(grid), grid, Pose2()).fitness == 1.0
+
+
+@pytest.fixture(scope="module", params=["intel", "aces"])
+def laser_pairs(request, shared_data) -> list[tuple[np.ndarray, np.ndarray, Pose2]]:
+    """(reference scan, query scan, odometry seed) of every 25th relation of a laser log whose robot moved < 5 m."""
     from factorloc.datasets.rosbag import read_laser_log
     from factorloc.evaluation.relations import read_relations
 
     laser = shared_data / "laser"
-    log = read_laser_log(laser / "intel.sort.bag")
-    rel = read_relations(laser / "intel.relations").subset(25)
+    log = read_laser_log(laser / f"{request.param}.sort.bag")
+    rel = read_relations(laser / f"{request.param}.relations").subset(25)
     out = []
     for t1, t2 in zip(rel.t1_s, rel.t2_s, strict=True):
         if log.odometry.distance_between(t1, t2)[0] < 5.0:
@@ -218,12 +317,16 @@ def intel_pairs(shared_data) -> list[tuple[np.ndarray, np.ndarray, Pose2]]:
     return out
 
 
-def test_align_reproduces_the_reference_implementation_on_real_laser_scans(intel_pairs) -> None:
-    params = PARAMS["step default (reassociation after 1 cm)"]
-    for ref_pts, qry_pts, seed in intel_pairs:
+def test_align_reproduces_the_reference_implementation_on_real_laser_scans(laser_pairs) -> None:
+    step = PARAMS["step default (reassociation after 1 cm)"]
+    noisy = PARAMS["range-dependent noise"]
+    for k, (ref_pts, qry_pts, seed) in enumerate(laser_pairs):
+        params, kernel = (step, Cauchy(0.05)) if k % 2 == 0 else (noisy, KERNELS[["huber", "tukey", "l2"][k % 3]])
         target = prepare_target(ref_pts, params)
+        gate = 0.5 if k % 4 == 0 else None
         _assert_same(
-            align(target, qry_pts, seed, params, Cauchy(0.05)), _reference_align(target, qry_pts, seed, params, Cauchy(0.05))
+            align(target, qry_pts, seed, params, kernel, max_correspondence_m=gate),
+            _reference_align(target, qry_pts, seed, params, kernel, max_gate=gate),
         )
 
 
