@@ -34,7 +34,8 @@ whole panorama is searched. The world-frame heading is
 Parallax (an extension of the patent): a query away from the reference sees
 near surfaces turned by up to ``atan(d/D)``. When the reference carries a
 cloud or a scan and a position hypothesis exists, the reference is first
-re-rendered from the hypothesised position (:mod:`factorloc.vision.synth`),
+re-rendered from the hypothesised position (:mod:`factorloc.vision.synth`; with a
+heading seed only the columns the seeded window can reach),
 the pyramids are then skipped (the warp already applies each column's
 magnification; small residual scales only blur the peak, and small templates
 of the coarse levels matched by chance), and σ gains the position's ``σ_p / range`` and a warp model term
