@@ -103,6 +103,15 @@ def run(name: str, data: Path, every: int, repeats: int) -> None:
     )
 
 
+def _first_call_seconds() -> float:
+    """Seconds of the process's first prepare_target + align: numba's cache load (or its compilation, ~6 s, on a
+    fresh checkout); every timed call below runs the compiled core."""
+    pts = np.column_stack([np.linspace(0.0, 3.0, 30), np.r_[np.zeros(15), np.ones(15)]])
+    t0 = time.perf_counter()
+    align(prepare_target(pts), pts, Pose2())
+    return time.perf_counter() - t0
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--every", type=int, default=10, help="use every k-th relation (fixed subset)")
@@ -110,6 +119,7 @@ def main() -> None:
     ap.add_argument("--datasets", default="intel,aces")
     ap.add_argument("--data", type=Path, default=DATA)
     args = ap.parse_args()
+    print(f"first prepare_target + align of the process (compiled core loaded or compiled): {_first_call_seconds():.3f} s")
     for name in [d for d in args.datasets.split(",") if d]:
         run(name, args.data, args.every, args.repeats)
 

@@ -20,6 +20,15 @@ Parametrisation. The increment ``δ = (dx, dy, dθ)`` moves the source
 that the 3×3 Hessian ``H = Σ w_i J_iᵀJ_i`` is directly the information of
 the source pose (x, y, θ) in the target frame — the covariance of the
 position of the query robot needs no further Jacobian.
+
+Implementation. :func:`align` validates its inputs and runs one compiled
+function (numba, ``cache=True``: the first call in a fresh checkout compiles
+for ~6 s, later processes load it in ~10 ms): exact nearest neighbours on the
+target's uniform grid (:mod:`~factorloc.registration.nn`, built once in
+:func:`prepare_target`), kept between searches while provably unchanged,
+the kernels' weights from :func:`~factorloc.registration.kernels.weight_scalar`.
+``tests/registration/test_icp2d.py`` holds a plain numpy reference
+implementation that it reproduces to 1e-9.
 """
 
 from __future__ import annotations

@@ -49,7 +49,14 @@ weight_scalar = njit(cache=True, inline="always")(_weight)
 for use inside other numba functions. (Numba's cache does not track this dependency: after editing
 :func:`_weight`, delete ``factorloc/registration/__pycache__/*.nb*`` — ``tests/registration`` fails otherwise.)"""
 
-_weight_ufunc = vectorize(["float64(int64, float64, float64)"], cache=True)(_weight)
+_UFUNC = []
+
+
+def _weight_ufunc(code: int, scale_m: float, r: np.ndarray) -> np.ndarray:
+    """:func:`_weight` applied elementwise to ``r`` (a numba ufunc, built at first use: loading it costs ~0.15 s)."""
+    if not _UFUNC:
+        _UFUNC.append(vectorize(["float64(int64, float64, float64)"], cache=True)(_weight))
+    return _UFUNC[0](code, scale_m, r)
 
 
 @runtime_checkable
