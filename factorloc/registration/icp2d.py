@@ -314,25 +314,29 @@ def _refresh(
     start: np.ndarray,
     geo: np.ndarray,
     bound: float,
-    delta: float,
+    rho: np.ndarray,
+    moved_t: float,
+    moved_r: float,
     eps: float,
     nk: np.ndarray,
     nd: np.ndarray,
     nD: np.ndarray,
 ) -> None:
-    """Exact nearest neighbours (within ``bound``) of the points ``(qx, qy)`` that moved by at most ``delta``
-    since the last call, in place: ``nk`` the packed row (-1: none closer than ``bound``), ``nd`` its distance
-    (inf: none), ``nD`` a lower bound on the distance of every other point.
+    """Exact nearest neighbours (within ``bound``) of the points ``(qx, qy)``, in place: ``nk`` the packed row
+    (-1: none closer than ``bound``), ``nd`` its distance (inf: none), ``nD`` a lower bound on the distance of
+    every other point.
 
-    A point keeps its neighbour without a search while that neighbour's new distance stays below
-    ``nD − delta − eps`` (every other point has come at most ``delta`` closer); a point without neighbour
-    keeps none while ``nD − delta − eps ≥ bound``. The others are searched
+    Since the last call the source moved by steps of total length ``moved_t`` (m) and total rotation
+    ``moved_r`` (rad) about its origin, so point i moved by at most ``δᵢ = moved_t + moved_r·ρᵢ`` (``rho``:
+    the points' ranges in the source frame). A point keeps its neighbour without a search while that
+    neighbour's new distance stays below ``nD − δᵢ − eps`` (every other point has come at most ``δᵢ``
+    closer); a point without neighbour keeps none while ``nD − δᵢ − eps ≥ bound``. The others are searched
     (:func:`~factorloc.registration.nn.grid_nearest2`). The result is the one of a search for every point.
     """
     b2 = bound * bound * (1.0 + 1e-9)  # the callers test d < gate themselves
     for i in range(len(qx)):
         k = nk[i]
-        lower = nD[i] - delta
+        lower = nD[i] - (moved_t + moved_r * rho[i])
         if k >= 0:
             dx = tgt[k, 0] - qx[i]
             dy = tgt[k, 1] - qy[i]
@@ -379,6 +383,7 @@ def _align_core(
     sp2, sb2, reassociate_m = prm[_P_SP2], prm[_P_SB2], prm[_P_REASSOC]
     noisy = sb2 != 0.0  # range-dependent noise: per-pair variances and weight factors
     var_src = np.empty(n)
+    rho = np.empty(n)
     rho2s = 0.0
     rho2m = 0.0
     for i in range(n):
@@ -386,6 +391,7 @@ def _align_core(
         rho2s += r2
         rho2m = max(rho2m, r2)
         var_src[i] = sp2 + sb2 * r2
+        rho[i] = math.sqrt(r2)
     rho_rms = math.sqrt(rho2s / n)
     rho_max = math.sqrt(rho2m)
     jj = np.empty(n, np.int64)  # the associated packed target row, -1: none
@@ -397,6 +403,7 @@ def _align_core(
     qx = np.empty(n)
     qy = np.empty(n)
     moved = math.inf  # largest point motion since the last association (m)
+    moved_t = moved_r = 0.0  # total translation (m) and rotation (rad) of the steps since the last _refresh
     last_gate = -1.0
     converged = False
     iters = 0
@@ -408,7 +415,9 @@ def _align_core(
             qx[i] = c * src[i, 0] - s * src[i, 1] + tx
             qy[i] = s * src[i, 0] + c * src[i, 1] + ty
         if gate != last_gate or moved > reassociate_m:
-            _refresh(qx, qy, tgt, start, geo, gate, moved, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
+            eps = 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max)
+            _refresh(qx, qy, tgt, start, geo, gate, rho, moved_t, moved_r, eps, nk, nd, nD)
+            moved_t = moved_r = 0.0
             nok = 0
             for i in range(n):
                 k = nk[i]
@@ -465,6 +474,8 @@ def _align_core(
         tx += dx
         ty += dy
         moved += math.hypot(dx, dy) + abs(dth) * rho_max
+        moved_t += math.hypot(dx, dy)
+        moved_r += abs(dth)
         if gate <= min_gate and math.hypot(dx, dy) < conv_t and abs(dth) < conv_r:
             converged = True
             break
@@ -475,7 +486,7 @@ def _align_core(
     for i in range(n):
         qx[i] = c * src[i, 0] - s * src[i, 1] + tx
         qy[i] = s * src[i, 0] + c * src[i, 1] + ty
-    _refresh(qx, qy, tgt, start, geo, bound, moved, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
+    _refresh(qx, qy, tgt, start, geo, bound, rho, moved_t, moved_r, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
     J = np.empty((n, 3))
     rwv = np.empty((3, n))
     H = np.zeros(6)
