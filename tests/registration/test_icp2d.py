@@ -238,6 +238,12 @@ def test_align_handles_degenerate_inputs_like_the_reference(room_points) -> None
     ]
     for tgt, src, seed in cases:
         _assert_same(align(tgt, src, seed, params), _reference_align(tgt, src, seed, params, Cauchy(0.05)))
+    unbounded = IcpParams(max_correspondence_m=math.inf)  # the gate never shrinks: 40 iterations, no convergence
+    src = _query(room_points, np.random.default_rng(9))
+    _assert_same(align(target, src, TRUE, unbounded), _reference_align(target, src, TRUE, unbounded, Cauchy(0.05)))
+    for seed in (Pose2(1e300, -1e300, 2.0), Pose2(-1.7e308, 1.7e308, 0.0)):  # absurd but finite seeds
+        res = align(target, room_points[::5] * 1e3, seed)
+        assert res.n_inliers == 0 and res.fitness == 0.0 and res.chamfer_m == 0.5 and not res.converged
     far = align(target, room_points[::5], Pose2(1e8, -1e8, 1.0))
     assert far.fitness == 0.0 and far.n_inliers == 0 and far.chamfer_m == pytest.approx(0.5)
     shifted = align(*cases[-1][:2], cases[-1][2], params).T_target_source
