@@ -100,7 +100,6 @@ class IcpParams:
     sigma_point_m: float = 0.01
     sigma_bearing_rad: float = 0.0
     reassociate_m: float = 0.0
-    _core: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.max_iterations < 1:
@@ -143,13 +142,15 @@ class IcpParams:
             dtype=np.float64,
         )
         core.setflags(write=False)
-        object.__setattr__(self, "_core", core)  # what the compiled core of align reads (_P_* indices)
+        # what the compiled core of align reads (_P_* indices): a plain attribute, not a dataclass field, so that
+        # fields(), asdict() and the config's to_dict/from_dict see the parameters only
+        object.__setattr__(self, "_core", core)
 
 
 @dataclass(frozen=True, eq=False)
 class PreparedScan:
     """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree
-    (:class:`~factorloc.registration.nn.KdTree2D`, for the other users of the scan: normals, covariance) and the
+    (:class:`~factorloc.registration.nn.KdTree2D`, which serves the normals; :func:`align` searches a grid) and the
     points' ranges (M,, m).
 
     The per-target terms of the residual are precomputed once (``n_ext``:

@@ -350,3 +350,14 @@ def test_align_gate_override_equals_params_with_that_gate(room_points: np.ndarra
     assert c.iterations != a.iterations
     with pytest.raises(InputError, match="max_correspondence_m"):
         align(target, src, seed, IcpParams(min_correspondence_m=0.2), max_correspondence_m=0.1)
+
+
+def test_icp_params_compiled_vector_follows_replace_and_stays_out_of_the_fields() -> None:
+    """The vector the compiled core reads is rebuilt by dataclasses.replace and is no dataclass field (the config's
+    to_dict/from_dict round trip sees the parameters only)."""
+    from dataclasses import asdict, fields, replace
+
+    p = replace(IcpParams(), shrink=0.5, sigma_bearing_rad=0.002, max_iterations=7)
+    assert "_core" not in {f.name for f in fields(p)} and "_core" not in asdict(p)
+    assert p._core[2] == 0.5 and p._core[9] == pytest.approx(0.002**2) and p._core[0] == 7
+    assert IcpParams(**asdict(p)) == p
