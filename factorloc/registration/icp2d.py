@@ -147,6 +147,31 @@ class IcpParams:
         object.__setattr__(self, "_core", core)
 
 
+@njit(cache=True)
+def _pack_target(
+    pts: np.ndarray, normals: np.ndarray, quality: np.ndarray, ranges: np.ndarray, cell_m: float, max_cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:class:`PreparedScan`'s derived arrays in one compiled pass: ``n_ext``, ``c_ext``, ``range2_ext`` (with
+    the zero row M), ``packed`` in the grid's cell order, and the grid (``order``, ``start``, ``geo``)."""
+    m = pts.shape[0]
+    n_ext = np.zeros((m + 1, 2))
+    c_ext = np.zeros(m + 1)
+    r2 = np.zeros(m + 1)
+    for i in range(m):
+        n_ext[i, 0] = normals[i, 0]
+        n_ext[i, 1] = normals[i, 1]
+        c_ext[i] = normals[i, 0] * pts[i, 0] + normals[i, 1] * pts[i, 1]
+        r2[i] = ranges[i] ** 2
+    order, start, geo = build_grid(pts[:, 0].copy(), pts[:, 1].copy(), cell_m, max_cells)
+    packed = np.empty((m, 7))
+    for k in range(m):
+        i = order[k]
+        packed[k, 0], packed[k, 1] = pts[i, 0], pts[i, 1]
+        packed[k, 2], packed[k, 3] = normals[i, 0], normals[i, 1]
+        packed[k, 4], packed[k, 5], packed[k, 6] = c_ext[i], r2[i], quality[i]
+    return n_ext, c_ext, r2, packed, order, start, geo
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedScan:
     """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree
@@ -186,22 +211,14 @@ class PreparedScan:
                 raise InputError(f"PreparedScan.{name} must have shape {shape} with M >= 1, got {got}")
         if not np.isfinite(pts).all():
             raise InputError("PreparedScan.points_m contains NaN or infinite values")
-        normals = np.asarray(self.normals, dtype=np.float64)
-        nx, ny = normals[:, 0], normals[:, 1]
-        n_ext = np.zeros((m + 1, 2))
-        n_ext[:m] = normals
-        c_ext = np.zeros(m + 1)
-        c_ext[:m] = nx * pts[:, 0] + ny * pts[:, 1]
-        r2 = np.zeros(m + 1)
-        r2[:m] = np.asarray(self.ranges_m, dtype=np.float64) ** 2
-        order, start, geo = build_grid(pts[:, 0].copy(), pts[:, 1].copy(), GRID_CELL_M, GRID_MAX_CELLS)
-        packed = np.empty((m, 7))
-        packed[:, :2] = pts
-        packed[:, 2:4] = normals
-        packed[:, 4] = c_ext[:m]
-        packed[:, 5] = r2[:m]
-        packed[:, 6] = self.quality
-        packed = np.ascontiguousarray(packed[order])
+        n_ext, c_ext, r2, packed, order, start, geo = _pack_target(
+            pts,
+            np.ascontiguousarray(self.normals, dtype=np.float64),
+            np.ascontiguousarray(self.quality, dtype=np.float64),
+            np.ascontiguousarray(self.ranges_m, dtype=np.float64),
+            GRID_CELL_M,
+            GRID_MAX_CELLS,
+        )
         for name, a in (
             ("n_ext", n_ext),
             ("c_ext", c_ext),
