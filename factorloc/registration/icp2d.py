@@ -390,7 +390,8 @@ def _align_core(
     ``grid_start``, ``grid_geo``; ``src`` (N×2, C-contiguous, finite, N ≥ 3); ``prm``: ``IcpParams._core``.
 
     Returns ``info`` (18,) ``[θ, t_x, t_y, iterations, converged, fitness, rmse, chamfer, K, H (9, row
-    major)]``, ``J`` (K×3) and ``rwv`` (3×K: residuals, weights, variances) of the final linearisation.
+    major)]``, ``J`` (N×3) and ``rwv`` (3×N: residuals, weights, variances) of the final linearisation in
+    their first K rows / columns.
     """
     n = src.shape[0]
     m = tgt.shape[0]
@@ -400,8 +401,11 @@ def _align_core(
     fit_d, cap, qthr = prm[_P_FIT_D], prm[_P_CAP], prm[_P_QUALITY]
     sp2, sb2, reassociate_m = prm[_P_SP2], prm[_P_SB2], prm[_P_REASSOC]
     noisy = sb2 != 0.0  # range-dependent noise: per-pair variances and weight factors
-    var_src = np.empty(n)
-    rho = np.empty(n)
+    # per-point work arrays in two allocations (rows: contiguous views)
+    ws = np.empty((7, n))
+    var_src, rho, nd, nD, wp, qx, qy = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5], ws[6]
+    iw = np.empty((2, n), np.int64)
+    jj, nk = iw[0], iw[1]  # the associated packed target row (-1: none); the nearest one kept by _refresh
     rho2s = 0.0
     rho2m = 0.0
     for i in range(n):
@@ -412,14 +416,11 @@ def _align_core(
         rho[i] = math.sqrt(r2)
     rho_rms = math.sqrt(rho2s / n)
     rho_max = math.sqrt(rho2m)
-    jj = np.empty(n, np.int64)  # the associated packed target row, -1: none
     # nearest neighbours kept between searches (_refresh): packed row (-1: none), distance, bound on the others'
-    nk = np.full(n, -1, np.int64)
-    nd = np.full(n, math.inf)
-    nD = np.full(n, -math.inf)
-    wp = np.ones(n)  # the pair's weight factor 2 sp² / σ²_pair
-    qx = np.empty(n)
-    qy = np.empty(n)
+    nk[:] = -1
+    nd[:] = math.inf
+    nD[:] = -math.inf
+    wp[:] = 1.0  # the pair's weight factor 2 sp² / σ²_pair
     moved = math.inf  # largest point motion since the last association (m)
     moved_t = moved_r = 0.0  # total translation (m) and rotation (rad) of the steps since the last _refresh
     last_gate = -1.0
@@ -562,7 +563,7 @@ def _align_core(
     info[9], info[10], info[11] = H[0], H[1], H[2]
     info[12], info[13], info[14] = H[1], H[3], H[4]
     info[15], info[16], info[17] = H[2], H[4], H[5]
-    return info, J[:ksel].copy(), rwv[:, :ksel].copy()
+    return info, J, rwv  # the first K = info[8] rows / columns
 
 
 def align(
@@ -638,7 +639,9 @@ def align(
         kernel.scale_m,
     )
     th, x, y, iters, conv, fitness, rmse, chamfer, k = info[:9].tolist()
+    k = int(k)
     H = info[9:].reshape(3, 3)
+    J, rwv = J[:k], rwv[:, :k]
     for a in (H, J, rwv):
         a.setflags(write=False)
     return IcpResult(
@@ -648,7 +651,7 @@ def align(
         fitness=fitness,
         rmse_m=rmse,
         chamfer_m=chamfer,
-        n_inliers=int(k),
+        n_inliers=k,
         hessian=H,
         jacobians=J,
         residuals_m=rwv[0],
