@@ -186,18 +186,10 @@ def _wrong(true: Pose2, est: Pose2, cov: np.ndarray) -> tuple[bool, float]:
 def relations_config(base: Config | None = None) -> Config:
     """The configuration ``ours`` runs with on the laser logs.
 
-    ``base`` (default :class:`Config`) with two changes:
+    ``base`` (default :class:`Config`) with two changes. (It used to also
+    raise ``icp.bias_rmse_ratio`` to 0.75 for real laser scans; that is now
+    the library default, see :class:`~factorloc.estimators.icp.IcpConfig`.)
 
-    * ``icp.bias_rmse_ratio = 0.75``. The library default (0.2) is calibrated
-      on simulated queries, whose truth is exact and whose noise is white. On
-      the relations the error also holds the ground truth's own error (the
-      published graph-SLAM solution differs from it by 3–4 cm) and correlated
-      real-world effects (sparse beams on door frames, moved objects, long
-      corridors) with heavy tails. Measured on the local relations: with 0.5
-      the ICP position NEES is 1.6 (Intel) and 2.2 (ACES) but 2.4 % of the
-      reliable ACES estimates are off by more than 3σ; with 0.75 the NEES is
-      0.7 and 1.1 and that rate falls to 0.7 % (0 % on Intel). We prefer the
-      honest tail to the textbook mean.
     * ``odometry.max_sigma_position_m = 1.0``: with the :class:`OdometryModel`
       σ (20 % of the path) the odometry stays a reliable seed up to a 5 m
       path, the local/loop boundary of the benchmark.
@@ -209,7 +201,6 @@ def relations_config(base: Config | None = None) -> Config:
     base = base or Config()
     return replace(
         base,
-        icp=replace(base.icp, bias_rmse_ratio=0.75),
         odometry=replace(base.odometry, max_sigma_position_m=1.0, max_sigma_heading_rad=0.55),
     )
 

@@ -79,7 +79,7 @@ def seeded_results() -> list[tuple[Case, Estimate]]:
         seed = Pose2(t.x + rng.normal(0, 0.05), t.y + rng.normal(0, 0.05), t.theta + rng.normal(0, math.radians(2)))
         hyp = Hypotheses((Estimate.pose("odometry", seed, 0.05, 0.05, math.radians(2)),))
         prep = prepare_reference(case.reference)
-        out.append((case, estimate(prep, query_points(case.query, prep.config), hyp)))
+        out.append((case, estimate(prep, query_points(case.query, prep.config), hyp, query_from_cloud=True)))
     return out
 
 
@@ -207,7 +207,27 @@ def test_step_protocol_skips_without_scans_and_plugs_into_localize() -> None:
     assert abs(loc.pose.theta - truth.theta) < math.radians(0.2)
 
 
+def test_the_correlated_error_ratio_follows_the_query_source() -> None:
+    # a laser scan gets bias_rmse_ratio (real lidars: per-surface offsets), a depth-cloud cut bias_rmse_ratio_cloud
+    case = _cases(1, 5, query_360=True)[0]
+    step = IcpStep()
+    cfg = step.config
+    assert (cfg.bias_rmse_ratio, cfg.bias_rmse_ratio_cloud) == (0.75, 0.2)
+    prep = step.prepare(case.reference)
+    t = case.truth
+    hyp = Hypotheses((Estimate.pose("odometry", Pose2(t.x + 0.02, t.y - 0.02, t.theta + 0.01), 0.05, 0.05, 0.03),))
+    pts = query_points(case.query, cfg)
+    from_cloud = step.estimate(prep, case.query, hyp)
+    as_scan = step.estimate(prep, Query(scan=Scan(pts)), hyp)
+    assert np.allclose(from_cloud.values, as_scan.values)  # same alignment, different covariance
+    assert np.allclose(from_cloud.covariance, estimate(prep, pts, hyp, replace(cfg, bias_rmse_ratio=0.2)).covariance)
+    assert np.allclose(as_scan.covariance, estimate(prep, pts, hyp, cfg).covariance)
+    assert np.trace(as_scan.covariance[:2, :2]) > 3.0 * np.trace(from_cloud.covariance[:2, :2])
+
+
 def test_config_rejects_bad_values() -> None:
+    with pytest.raises(ConfigError, match="bias_rmse_ratio_cloud"):
+        IcpConfig(bias_rmse_ratio_cloud=-0.1)
     with pytest.raises(ConfigError, match="covariance"):
         IcpConfig(covariance="magic")
     with pytest.raises(ConfigError, match="kernel"):

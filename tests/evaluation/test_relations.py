@@ -152,3 +152,12 @@ def test_relations_reader_and_subset_reject_bad_input(tmp_path: Path) -> None:
     p.write_text("1 2 3\n")
     with pytest.raises(DatasetError, match="8 columns"):
         read_relations(p)
+
+
+def test_relations_config_changes_only_the_odometry_limits() -> None:
+    # real laser scans get the library's own ICP default (bias_rmse_ratio 0.75): no override for the logs
+    from factorloc.config import Config
+
+    cfg, base = relations_config(), Config()
+    assert cfg.icp == base.icp and cfg.icp.bias_rmse_ratio == 0.75
+    assert (cfg.odometry.max_sigma_position_m, cfg.odometry.max_sigma_heading_rad) == (1.0, 0.55)

@@ -286,3 +286,74 @@ def test_bad_sensor_inputs_are_refused_with_the_field_named() -> None:
         DepthCamera(min_range_m=2.0, max_range_m=1.0)
     with pytest.raises(InputError, match="PinholeCamera.hfov_rad"):
         PinholeCamera(hfov_rad=4.0)
+
+
+# --------------------------------------------------------------------------
+# render_scan's real-lidar error model
+# --------------------------------------------------------------------------
+_WHITE_ONLY = dict(systematic_sigma_m=0.0, beam_divergence_rad=0.0, spot_exit_m=0.0)
+
+
+def _range_errors(world: World, pose: Pose2, rng: np.random.Generator, **kw) -> np.ndarray:
+    exact = np.hypot(*render_scan(world, pose, n_beams=720).points_m.T)
+    noisy = np.hypot(*render_scan(world, pose, n_beams=720, rng=rng, **kw).points_m.T)
+    return noisy - exact
+
+
+def test_scan_statistical_noise_is_white_with_the_given_sigma() -> None:
+    rng = np.random.default_rng(1)
+    e = np.concatenate([_range_errors(square_room(), Pose2(3.0, 4.0, 0.2), rng, sigma_m=0.005, **_WHITE_ONLY) for _ in range(5)])
+    assert np.std(e) == pytest.approx(0.005, rel=0.05)
+    assert abs(np.corrcoef(e[:-1], e[1:])[0, 1]) < 0.05  # independent from beam to beam
+
+
+def test_scan_systematic_error_is_one_offset_per_wall_and_scan() -> None:
+    # without statistical noise and mixed pixels, every beam on a wall carries that wall's offset
+    world, pose = square_room(), Pose2(3.0, 4.0, 0.2)
+    rng = np.random.default_rng(2)
+    offsets = []
+    for _ in range(100):
+        e = _range_errors(world, pose, rng, sigma_m=0.0, systematic_sigma_m=0.0075, beam_divergence_rad=0.0, spot_exit_m=0.0)
+        v = np.sort(e)
+        groups = np.split(v, np.flatnonzero(np.diff(v) > 1e-5) + 1)  # points are stored as float32: 10 µm apart
+        assert len(groups) <= 4  # four walls, four offsets
+        assert max(float(g.max() - g.min()) for g in groups) < 1e-5
+        offsets.extend(float(g.mean()) for g in groups)
+    # a fresh offset per scan: 100 scans × 4 walls, σ as asked
+    assert np.std(offsets) == pytest.approx(0.0075, rel=0.15)
+    assert abs(np.mean(offsets)) < 0.002
+
+
+def test_scan_mixed_pixels_fall_between_the_edge_surfaces() -> None:
+    # a pillar 2 m in front of the far wall: beams next to its edges may return a range in between
+    pillar = Obstacle(((6.0, 4.8), (6.4, 4.8), (6.4, 5.2), (6.0, 5.2)), 2.5)
+    world, pose = square_room(obstacles=(pillar,)), Pose2(2.0, 5.0, 0.0)
+    exact = render_scan(world, pose, n_beams=720)
+    rng = np.random.default_rng(3)
+    between = 0
+    for _ in range(20):
+        pts = pose.transform_points(render_scan(world, pose, n_beams=720, rng=rng, sigma_m=0.0, systematic_sigma_m=0.0).points_m)
+        x = pts[:, 0]
+        in_gap = (x > 6.5) & (x < 9.9) & (np.abs(pts[:, 1] - 5.0) < 0.5)  # free space behind the pillar
+        between += int(in_gap.sum())
+    assert between > 0  # spots straddling the pillar's edges (4.6 mrad divergence, 0.5° beams) give phantom points
+    assert between < 20 * 6  # but only at the edges: at most a few beams per scan
+    no_mix = render_scan(world, pose, n_beams=720, rng=rng, sigma_m=0.0, **_WHITE_ONLY)
+    assert np.allclose(no_mix.points_m, exact.points_m)
+
+
+def test_scan_error_model_leaves_the_callers_random_stream_as_before() -> None:
+    # the statistical noise takes n_beams normals from rng; the rest comes from a spawned child
+    world, pose = apartment(), Pose2(3.0, 2.2, 0.3)
+    a = np.random.default_rng(5)
+    render_scan(world, pose, rng=a)
+    b = np.random.default_rng(5)
+    b.normal(0.0, 1.0, 360)
+    assert a.random(4).tolist() == b.random(4).tolist()
+
+
+def test_scan_error_model_parameters_are_checked() -> None:
+    with pytest.raises(InputError, match="systematic_sigma_m"):
+        render_scan(apartment(), Pose2(3.0, 2.2, 0.3), systematic_sigma_m=-0.01)
+    with pytest.raises(InputError, match="mixed_min_jump_m"):
+        render_scan(apartment(), Pose2(3.0, 2.2, 0.3), mixed_min_jump_m=0.0)
