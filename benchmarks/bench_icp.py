@@ -74,7 +74,9 @@ def sim_calibration(n: int, seed: int = 2) -> dict:
             seed = Pose2(
                 truth.x + rng.normal(0, 0.05), truth.y + rng.normal(0, 0.05), truth.theta + rng.normal(0, math.radians(2))
             )
-            est = estimate(ref, pts, Hypotheses((Estimate.pose("odometry", seed, 0.05, 0.05, math.radians(2)),)))
+            est = estimate(
+                ref, pts, Hypotheses((Estimate.pose("odometry", seed, 0.05, 0.05, math.radians(2)),)), query_from_cloud=True
+            )
         except InputError:
             continue
         if est.kind == "heading":  # a degenerate view: reliable heading only, no position to calibrate
