@@ -198,7 +198,8 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
 
     ``time_ratio`` = blind / seeded median localize() time; ``false_positive_ratio``
     = blind / seeded false-positive count (with 0 seeded false positives it is
-    the blind count, a lower bound: ``false_positive_ratio_is_lower_bound``).
+    the blind count, a lower bound: ``false_positive_ratio_is_lower_bound``; with
+    none on either side it is ``nan``: there is nothing to compare).
 
     A step that is never reliable has no false positive: the per-step counts
     are therefore given with the reliable counts they come from
@@ -236,10 +237,10 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
         }
     s, b = out["seeded"], out["blind"]
     out["time_ratio"] = _ratio(b["median_ms"], s["median_ms"])
-    out["false_positive_ratio"] = b["false_positive_count"] / max(s["false_positive_count"], 1)
-    out["false_positive_ratio_is_lower_bound"] = s["false_positive_count"] == 0
-    out["confidently_wrong_ratio"] = b["confidently_wrong_count"] / max(s["confidently_wrong_count"], 1)
-    out["confidently_wrong_ratio_is_lower_bound"] = s["confidently_wrong_count"] == 0
+    for key, count in (("false_positive_ratio", "false_positive_count"), ("confidently_wrong_ratio", "confidently_wrong_count")):
+        # none on either side: no ratio to claim (nan); none seeded only: the blind count is a lower bound
+        out[key] = b[count] / max(s[count], 1) if b[count] or s[count] else math.nan
+        out[f"{key}_is_lower_bound"] = s[count] == 0 and b[count] > 0
     return out
 
 

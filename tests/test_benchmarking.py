@@ -117,3 +117,15 @@ def test_hierarchy_ablation_counts_false_positives_of_the_seeded_steps_only(room
     assert h["blind"]["confidently_wrong_count"] == 3 and h["seeded"]["confidently_wrong_count"] == 0
     assert h["confidently_wrong_ratio"] == 3.0 and h["confidently_wrong_ratio_is_lower_bound"] is True
     assert h["blind"]["determined_rate"] == h["seeded"]["determined_rate"] == 1.0
+
+
+def test_hierarchy_ablation_claims_no_ratio_when_neither_mode_has_a_false_positive(room: EvaluationSet) -> None:
+    from factorloc.benchmarking import bench_hierarchy
+    from factorloc.estimators.odometry import OdometryStep
+    from factorloc.evaluation import run_hierarchy
+
+    steps = [OdometryStep()]
+    h = bench_hierarchy([run_hierarchy(room, steps=steps)], [run_hierarchy(room, steps=steps, seeded=False)])
+    assert h["seeded"]["false_positive_count"] == h["blind"]["false_positive_count"] == 0
+    assert math.isnan(h["false_positive_ratio"]) and h["false_positive_ratio_is_lower_bound"] is False
+    assert math.isnan(h["confidently_wrong_ratio"]) and h["confidently_wrong_ratio_is_lower_bound"] is False
