@@ -190,7 +190,7 @@ def _graded(v: Any, text: str, good: bool) -> str:
 
 
 def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> Table:
-    """Accuracy, honesty and speed of the fused poses: one row for all queries, then one per fault."""
+    """Accuracy, honesty and speed of the fused poses: all queries, those with an overlapping view, then per fault."""
     table = _table(
         title,
         ("queries", "n", "pos\nRMSE", "pos\np95", "θ\nRMSE", "θ\np95", "NEES", "conf.\nwrong", "full\npose", "ms"),
@@ -214,6 +214,8 @@ def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> 
         )
 
     row("all", out, "bold")
+    if out.get("overlapping", {}).get("queries"):
+        row("overlapping view", out["overlapping"], "bold")
     for tag, s in out.get("by_fault", {}).items():
         row("no fault" if tag == "none" else tag, s, "dim" if tag == "none" else "")
     return table
@@ -317,6 +319,11 @@ def evaluate(
 # ----------------------------------------------------------------------------
 # bench
 # ----------------------------------------------------------------------------
+def _ratio_text(ratio: float | None, prefix: str = "") -> str:
+    """``"≥ 4.0×"``-style text of a ratio; "—" when there is nothing to compare (None or NaN)."""
+    return f"{prefix}{ratio:.1f}×" if ratio is not None and math.isfinite(ratio) else "—"
+
+
 def bench_tables(out: dict[str, Any]) -> list[Table]:
     """The bench figures as rich tables: localize per step, seeded vs blind, ICP vs Open3D, fusion, cost curve."""
     loc = out["localize"]
@@ -339,7 +346,7 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
         "false positives of seeded steps",
         str(s["false_positive_count"]),
         str(b["false_positive_count"]),
-        f"{lb}{h['false_positive_ratio']:.1f}×" if h["false_positive_ratio"] is not None else "—",
+        _ratio_text(h["false_positive_ratio"], lb),
     )
     for name in s["steps_false_positive_count"]:
         t2.add_row(
@@ -348,7 +355,15 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
             f"{b['steps_false_positive_count'][name]} / {_pct(b['steps_reliable_rate'][name])}",
             "",
         )
-    t2.add_row("confidently-wrong fused", _pct(s["confidently_wrong_rate"]), _pct(b["confidently_wrong_rate"]), "")
+    cw_ratio = h.get("confidently_wrong_ratio")
+    cw_lb = "≥ " if h.get("confidently_wrong_ratio_is_lower_bound") else ""
+    t2.add_row(
+        "confidently-wrong fused",
+        f"{s['confidently_wrong_count']} ({_pct(s['confidently_wrong_rate'])})",
+        f"{b['confidently_wrong_count']} ({_pct(b['confidently_wrong_rate'])})",
+        _ratio_text(cw_ratio, cw_lb),
+    )
+    t2.add_row("fully localized", _pct(s["determined_rate"]), _pct(b["determined_rate"]), "")
 
     icp = out["icp_vs_open3d"]
     t3 = _table(

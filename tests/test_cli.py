@@ -183,6 +183,8 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
                 "steps_false_positive_count": {},
                 "steps_reliable_rate": {},
                 "confidently_wrong_rate": 0.0,
+                "confidently_wrong_count": 0,
+                "determined_rate": 0.9,
             },
             "blind": {
                 "median_ms": 40.0,
@@ -190,10 +192,14 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
                 "steps_false_positive_count": {},
                 "steps_reliable_rate": {},
                 "confidently_wrong_rate": 0.1,
+                "confidently_wrong_count": 2,
+                "determined_rate": 0.8,
             },
             "time_ratio": 4.0,
             "false_positive_ratio": 3.0,
             "false_positive_ratio_is_lower_bound": True,
+            "confidently_wrong_ratio": 2.0,
+            "confidently_wrong_ratio_is_lower_bound": True,
         },
         "icp_vs_open3d": {"pairs": 0},
         "fusion": {"queries": 0},
@@ -207,7 +213,7 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
     for t in bench_tables(out):
         console.print(t)
     text = console.export_text()
-    assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text
+    assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text and "≥ 2.0×" in text
 
 
 def test_evaluate_uses_the_given_config(tmp_path: Path) -> None:
