@@ -36,6 +36,21 @@ from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
 GROUPS: dict[str, tuple[Component, ...]] = {"position": POSITION, "heading": HEADING}
 
 
+def unconstrained_position(covariance: np.ndarray, unknown_sigma_m: float) -> bool:
+    """Whether a fused position covariance (world frame, m²) leaves a direction unconstrained.
+
+    True when its largest eigen-σ reaches half ``unknown_sigma_m``, the σ an
+    estimate states along a direction its data do not constrain (the ICP
+    step's :data:`~factorloc.estimators.icp.UNCONSTRAINED_SIGMA_M`): only
+    estimates that say "unknown" along that direction were fused.
+    """
+    a, b, c = float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1])
+    if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
+        return True
+    largest = 0.5 * (a + c) + math.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return largest >= (0.5 * unknown_sigma_m) ** 2
+
+
 def sigma_gate(
     estimate: Estimate,
     max_sigma_position_m: float | None = None,
@@ -123,9 +138,11 @@ def _gate_group(
 
     ``values`` are k-tuples (k = 1: θ; k = 2: x, y) and ``covariances`` their
     packed symmetric covariances (see :func:`_inv`). Leave-one-out products are
-    computed in information form: the total information and
-    information-weighted sum of the active estimates, minus the estimate's
-    own (headings unwrapped around the most certain one). Scalar arithmetic:
+    computed in information form, summed over the other active estimates
+    (headings unwrapped around the most certain one); a single other estimate
+    is used as it is (its covariance, not the inverse of its information,
+    which loses ~7 digits on an estimate unknown along one wall). Ties
+    (within 1e-6 relative) reject the earliest. Scalar arithmetic:
     at most a handful of 1×1 and 2×2 systems per query, where numpy's
     per-call overhead would dominate.
     """
@@ -147,27 +164,34 @@ def _gate_group(
     active = list(range(n))
     round_d2: dict[int, float] = {}
     while len(active) >= 2:
-        total_lam = [sum(lam[i][j] for i in active) for j in range(len(lam[0]))]
-        total_b = [sum(lam_z[i][j] for i in active) for j in range(k)]
         worst, worst_d2 = None, threshold
         round_d2 = {}
         for i in active:
-            cov_o = _inv(tuple(t - own for t, own in zip(total_lam, lam[i], strict=True)))
-            b = [t - own for t, own in zip(total_b, lam_z[i], strict=True)]
+            others = [j for j in active if j != i]
+            if len(others) == 1:
+                # the product of one estimate is itself: its own covariance and value, not the inverse of its
+                # information (an estimate unknown along one direction, 30 m vs 1 cm, loses ~7 digits in the round trip)
+                cov_o = covariances[others[0]]
+                mean_o = values[others[0]]
+            else:
+                # the others' product summed directly (not total − own: no cancellation)
+                cov_o = _inv(tuple(sum(lam[j][m] for j in others) for m in range(len(lam[0]))))
+                b = [sum(lam_z[j][m] for j in others) for m in range(k)]
+                mean_o = (cov_o[0] * b[0],) if k == 1 else (cov_o[0] * b[0] + cov_o[1] * b[1], cov_o[1] * b[0] + cov_o[2] * b[1])
             c = covariances[i]
             if k == 1:
-                err = values[i][0] - cov_o[0] * b[0]
+                err = values[i][0] - mean_o[0]
                 if is_heading:
                     err = wrap_angle(err)
                 d2 = err * err / (c[0] + cov_o[0])
             else:
-                ex = values[i][0] - (cov_o[0] * b[0] + cov_o[1] * b[1])
-                ey = values[i][1] - (cov_o[1] * b[0] + cov_o[2] * b[1])
+                ex = values[i][0] - mean_o[0]
+                ey = values[i][1] - mean_o[1]
                 sa, sb, sd = _inv((c[0] + cov_o[0], c[1] + cov_o[1], c[2] + cov_o[2]))
                 d2 = ex * (sa * ex + sb * ey) + ey * (sb * ex + sd * ey)
             d2 = float(d2)
             round_d2[i] = d2
-            if d2 > worst_d2 * (1.0 + 1e-9):  # strictly worse: ties keep the earliest
+            if d2 > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
                 worst, worst_d2 = i, d2
         if worst is None:
             break
@@ -302,4 +326,5 @@ __all__ = [
     "seed_audit",
     "seed_misfit",
     "sigma_gate",
+    "unconstrained_position",
 ]

@@ -24,14 +24,14 @@ from factorloc.errors import FactorlocError, InputError
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.estimators.compass import CompassStep
 from factorloc.estimators.correlation import CorrelationStep
-from factorloc.estimators.icp import IcpStep
+from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.fusion.base import FusionStrategy
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
-from factorloc.gating import consistency_gate, seed_audit
+from factorloc.gating import consistency_gate, seed_audit, unconstrained_position
 from factorloc.geometry import Pose2
-from factorloc.types import FULL, Estimate, Localization, Query, Reference, StepReport, StepStatus
+from factorloc.types import FULL, Component, Estimate, Localization, Query, Reference, StepReport, StepStatus
 
 log = logging.getLogger(__name__)
 
@@ -165,7 +165,15 @@ def _result(
         seed = query.odometry.T_world_robot if query is not None and query.odometry is not None else Pose2()
         return Localization(seed, np.diag([math.inf] * 3), tuple(reports), strategy.name, FULL, config)
     fused = strategy.fuse(fused_inputs)
-    return Localization(fused.pose, fused.covariance, tuple(reports), strategy.name, fused.undetermined, config)
+    undetermined, cov = fused.undetermined, np.array(fused.covariance, dtype=np.float64)
+    if Component.X not in undetermined and unconstrained_position(cov, UNCONSTRAINED_SIGMA_M):
+        # only estimates that are "unknown" along some direction measured the position (one wall, no seed):
+        # the position is not determined, whatever its value across the wall
+        undetermined = tuple(c for c in FULL if c in undetermined or c in (Component.X, Component.Y))
+        cov[:2, :] = 0.0
+        cov[:, :2] = 0.0
+        cov[0, 0] = cov[1, 1] = math.inf
+    return Localization(fused.pose, cov, tuple(reports), strategy.name, undetermined, config)
 
 
 def localize(

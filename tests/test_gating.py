@@ -7,7 +7,14 @@ import math
 import numpy as np
 
 from factorloc import Component, Estimate, Pose2
-from factorloc.gating import chi2_threshold, consistency_gate, mahalanobis_sq, seed_audit, sigma_gate
+from factorloc.gating import (
+    chi2_threshold,
+    consistency_gate,
+    mahalanobis_sq,
+    seed_audit,
+    sigma_gate,
+    unconstrained_position,
+)
 
 
 def test_sigma_gate_uses_the_long_axis_of_the_position_covariance() -> None:
@@ -105,3 +112,33 @@ def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
     # no reliable position seed before it: nothing to contradict
     unreliable_odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.6, 0.6, 0.5, reliable=False)
     assert seed_audit([unreliable_odo, _icp_misfit(1.3, 1.9)]) == {}
+
+
+def _along_a_diagonal_wall(x: float, y: float, sigma_across_m: float = 0.01) -> Estimate:
+    """A full pose unknown (30 m) along the wall y = x and known to ``sigma_across_m`` across it."""
+    u, n = np.array([1.0, 1.0]) / math.sqrt(2.0), np.array([1.0, -1.0]) / math.sqrt(2.0)
+    cov = np.zeros((3, 3))
+    cov[:2, :2] = 30.0**2 * np.outer(u, u) + sigma_across_m**2 * np.outer(n, n)
+    cov[2, 2] = 0.002**2
+    return Estimate.pose("icp", Pose2(x, y, 0.5), covariance=cov)
+
+
+def test_the_consistency_gate_tests_a_wall_estimate_only_across_the_wall() -> None:
+    icp = _along_a_diagonal_wall(1.0, 0.0)
+    # world σx = σy ≈ 21 m: a per-axis σ test would call it useless; the Mahalanobis distance sees the 1 cm
+    assert icp.sigma("x") > 20.0 and icp.sigma("y") > 20.0
+    far_along = Estimate.pose("odometry", Pose2(1.0 + 0.5, 0.0 + 0.5, 0.5), 0.05, 0.05, 0.05)  # 71 cm along the wall
+    verdicts = consistency_gate([far_along, icp])
+    assert all(v.fully_accepted for v in verdicts)
+    assert verdicts[0].mahalanobis_sq["position"] < 0.01
+    off_across = Estimate.pose("odometry", Pose2(1.0 + 0.1, 0.0 - 0.1, 0.5), 0.03, 0.03, 0.05)  # 14 cm across: 4.7σ
+    verdicts = consistency_gate([off_across, icp])
+    assert verdicts[0].mahalanobis_sq["position"] > chi2_threshold(0.999, 2)
+    assert verdicts[0].accepted == (Component.THETA,)  # the earlier step loses its position on the tie
+    assert verdicts[1].fully_accepted
+
+
+def test_unconstrained_position_flags_only_a_direction_nobody_measured() -> None:
+    assert unconstrained_position(_along_a_diagonal_wall(1.0, 0.0).covariance, 30.0)
+    assert not unconstrained_position(np.diag([0.3**2, 0.3**2, 0.01]), 30.0)
+    assert unconstrained_position(np.diag([np.inf, np.inf, 0.01]), 30.0)

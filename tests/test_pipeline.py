@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from factorloc import (
+    Component,
     Config,
     Estimate,
     InputError,
@@ -176,3 +177,52 @@ def test_kidnapped_robot_whose_scan_fits_nowhere_near_its_odometry_is_not_locali
             assert sq.faults == () and odo_error_m < 0.05
             assert odo.status is StepStatus.FUSED and loc.determined
     assert audited >= 2  # the corridor ones at least: their scans fit the reference nowhere
+
+
+def _single_wall_case() -> tuple[Reference, Query, Pose2, Estimate, np.ndarray]:
+    """One 8 m wall along the world diagonal y = x (both world σx, σy of "along it" are large), seen by the
+    reference and by the query; an odometry 20 cm off along the wall and 10 cm off across it."""
+    rng = np.random.default_rng(3)
+    t = np.linspace(-4.0, 4.0, 400)
+    wall = np.column_stack([t, t])
+    along = np.array([1.0, 1.0]) / math.sqrt(2.0)
+    T_ref = Pose2(1.0, 0.0, 0.3)
+    truth = Pose2(1.5, 0.2, 1.0)
+    ref = Reference(scan=Scan(T_ref.inverse().transform_points(wall)), T_world_reference=T_ref)
+    query = Query(scan=Scan(truth.inverse().transform_points(wall) + rng.normal(0.0, 0.003, wall.shape)))
+    across = np.array([along[1], -along[0]])
+    p = truth.translation + 0.2 * along + 0.1 * across
+    odo = Estimate.pose("odometry", Pose2(p[0], p[1], truth.theta + math.radians(2.0)), 0.3, 0.3, math.radians(3.0))
+    return ref, query, truth, odo, along
+
+
+def test_a_single_wall_pins_the_position_across_it_and_the_odometry_gives_it_along() -> None:
+    from factorloc.estimators.icp import IcpStep
+
+    ref, query, truth, odo, along = _single_wall_case()
+    loc = localize(ref, query, steps=[Recorder("odometry", odo), IcpStep()])
+    icp = loc.step("icp")
+    assert icp.status == StepStatus.FUSED and icp.estimate.kind == "full"
+    assert icp.estimate.reason.startswith("across the walls and heading only")
+    assert loc.determined
+    e = loc.pose.translation - truth.translation
+    across = np.array([along[1], -along[0]])
+    assert abs(float(e @ across)) < 0.01  # the odometry was 10 cm off across the wall
+    assert abs(math.remainder(loc.pose.theta - truth.theta, 2 * math.pi)) < math.radians(0.2)  # odometry: 2°
+    # along the wall the fused position is the odometry's (20 cm off), honestly covered by the fused σ
+    sigma_along = math.sqrt(float(along @ loc.covariance[:2, :2] @ along))
+    assert 0.25 < sigma_along < 0.35 and abs(float(e @ along)) < 3.0 * sigma_along
+    sigma_across = math.sqrt(float(across @ loc.covariance[:2, :2] @ across))
+    assert sigma_across < 0.03 and abs(float(e @ across)) < 3.0 * sigma_across
+
+
+def test_a_single_wall_alone_leaves_the_position_undetermined() -> None:
+    from factorloc.estimators.icp import IcpStep
+
+    ref, query, truth, odo, _ = _single_wall_case()
+    loc = localize(ref, query, steps=[Recorder("odometry", odo), IcpStep()])
+    # the ICP estimate without its seed: it knows the heading and the offset across the wall only
+    alone = fuse([loc.step("icp").estimate])
+    assert set(alone.undetermined) == {Component.X, Component.Y}
+    assert np.isinf(alone.sigmas[:2]).all()
+    assert abs(math.remainder(alone.pose.theta - truth.theta, 2 * math.pi)) < math.radians(0.2)

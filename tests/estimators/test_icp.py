@@ -89,9 +89,14 @@ def _errors(case: Case, est: Estimate) -> tuple[float, float, float]:
     return float(np.hypot(*e)), abs(math.remainder(est.values[2] - case.truth.theta, 2 * math.pi)), nees
 
 
+def _degenerate(est: Estimate) -> bool:
+    """A degenerate view's estimate: reliable across the walls and in heading, unknown along them."""
+    return est.reason.startswith("across the walls and heading only")
+
+
 def _full(seeded_results) -> list:
-    """The reliable full-pose estimates (heading-only ones, of degenerate views, are tested on their own)."""
-    return [(c, e) for c, e in seeded_results if e.reliable and e.kind == "full"]
+    """The reliable full-pose estimates (those of degenerate views, unknown along the walls, are tested on their own)."""
+    return [(c, e) for c, e in seeded_results if e.reliable and e.kind == "full" and not _degenerate(e)]
 
 
 def test_seeded_icp_is_accurate_within_2_m_of_the_reference(seeded_results) -> None:
@@ -107,14 +112,19 @@ def test_seeded_covariance_is_calibrated_and_never_confidently_wrong(seeded_resu
     assert np.all(nees < 13.8)  # nothing beyond the 99.9 % ellipse
 
 
-def test_degenerate_views_give_an_accurate_heading_only(seeded_results) -> None:
-    heading_only = [(c, e) for c, e in seeded_results if e.kind == "heading"]
-    assert len(heading_only) >= 2  # single 58° views of one wall: the position slides, the heading does not
-    for case, est in heading_only:
-        assert est.reliable
-        assert est.reason.startswith("heading only: degenerate geometry")
-        err = abs(math.remainder(est.values[0] - case.truth.theta, 2 * math.pi))
+def test_degenerate_views_are_accurate_across_the_walls_and_in_heading_unknown_along(seeded_results) -> None:
+    degenerate = [(c, e) for c, e in seeded_results if _degenerate(e)]
+    assert len(degenerate) >= 2  # single 58° views of one wall: the position slides along it, not across, nor the heading
+    for case, est in degenerate:
+        assert est.reliable and est.kind == "full"
+        assert "degenerate geometry" in est.reason
+        err = abs(math.remainder(est.values[2] - case.truth.theta, 2 * math.pi))
         assert err < 3.0 * est.sigma("theta") and err < math.radians(1.0)
+        lam, vec = np.linalg.eigh(est.covariance[:2, :2])
+        assert math.sqrt(lam[1]) > 20.0  # along the wall: unknown (UNCONSTRAINED_SIGMA_M = 30 m)
+        assert math.sqrt(lam[0]) < 0.03  # across: ICP's own σ
+        across = float(vec[:, 0] @ np.array([est.values[0] - case.truth.x, est.values[1] - case.truth.y]))
+        assert abs(across) < 3.0 * math.sqrt(lam[0]) and abs(across) < 0.03
 
 
 def test_a_distant_global_solution_does_not_overturn_a_free_space_consistent_seed(seeded_results) -> None:
@@ -172,10 +182,14 @@ def test_a_corridor_is_flagged_degenerate_with_a_long_sigma_along_it() -> None:
     prep = prepare_reference(Reference(scan=Scan(walls), T_world_reference=Pose2(1.0, 2.0, math.pi / 2)))
     hyp = Hypotheses((Estimate.pose("odometry", Pose2(1.0, 2.3, math.pi / 2), 0.05, 0.05, 0.02),))
     query = walls[::2] + np.array([0.3, 0.0])
-    # the walls fix the heading: a reliable heading-only estimate (the reference is turned by 90°, the query by 0)
+    # the walls fix the heading and the position across them (the reference is turned by 90°, the query by 0): a
+    # reliable full pose, unknown along the corridor (world y), ~1 cm across it (world x; the query is shifted along
+    # the corridor only, so the true x is the reference's, 1.0, while the seed says nothing wrong across it)
     est = estimate(prep, query, hyp)
-    assert est.kind == "heading" and est.reliable
-    assert abs(math.remainder(est.values[0] - math.pi / 2, 2 * math.pi)) < 1e-3
+    assert est.kind == "full" and est.reliable
+    assert abs(math.remainder(est.values[2] - math.pi / 2, 2 * math.pi)) < 1e-3
+    assert abs(est.values[0] - 1.0) < 0.005
+    assert est.sigma("x") < 0.03 and est.sigma("y") > 20.0
     # the full pose is unreliable, with its long axis along the corridor
     est = estimate(prep, query, hyp, replace(prep.config, heading_only_when_degenerate=False))
     assert not est.reliable
