@@ -19,8 +19,9 @@ Methods compared side by side in one run, all seeded by the same odometry:
 * ``ours_icp`` — the ICP step's own estimate in that same run, with its own
   covariance and reliability verdict (what the estimator is responsible for,
   without the odometry it is fused with); requested together with ``ours``.
-  A heading-only ICP result (degenerate geometry) counts as no position
-  estimate: unreliable, infinite error;
+  A degenerate ICP result (heading-only, or a position unknown along a
+  corridor) vouches for no full position: its row is unreliable and shows the
+  pose ICP slid to;
 * ``odometry`` — the odometry alone (reliable per the odometry step's σ test);
 * ``open3d_p2p`` / ``open3d_p2plane`` — Open3D's ICP
   (:mod:`factorloc.registration.open3d_peer`), reliable when its fitness
@@ -46,14 +47,14 @@ from scipy.stats import chi2
 from factorloc.config import Config
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import DatasetError, InputError
-from factorloc.estimators.icp import IcpStep
+from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
 from factorloc.geometry import Pose2
 from factorloc.pipeline import Localizer
 from factorloc.registration.icp2d import prepare_target
 from factorloc.registration.open3d_peer import open3d_icp
-from factorloc.types import Odometry, Query, Reference, StepStatus
+from factorloc.types import Estimate, Odometry, Query, Reference, StepStatus
 
 __all__ = [
     "METHODS",
@@ -161,6 +162,13 @@ class RelationResult:
     nees_position: float = math.nan
     used_global_init: bool = False
     diagnostics: dict[str, Any] = field(default_factory=dict)
+
+
+def _position_not_measured(est: Estimate) -> bool:
+    """A degenerate ICP result: heading-only, or a pose whose position is unknown along a corridor."""
+    if est.kind == "heading":
+        return True
+    return bool(np.linalg.eigvalsh(est.covariance[:2, :2])[-1] >= (0.5 * UNCONSTRAINED_SIGMA_M) ** 2)
 
 
 def _errors(true: Pose2, est: Pose2) -> tuple[float, float]:
@@ -295,11 +303,13 @@ def relations_benchmark(
                     "localize_seconds": dt,
                 }
                 nees_icp = math.nan
-                heading_only = icp_est is not None and icp_est.kind == "heading"
+                heading_only = icp_est is not None and _position_not_measured(icp_est)
                 if heading_only:
-                    # a heading-only ICP result (degenerate geometry): the step vouches for no position; its row
-                    # shows the pose ICP converged to (slid along the corridor), unreliable
-                    T_icp = Pose2.from_array(icp_est.diagnostics["T_reference_query"])
+                    # degenerate geometry: the step vouches for no full position (heading-only, or unknown along the
+                    # corridor); its row shows the pose ICP converged to (slid along the corridor), unreliable
+                    T_icp = Pose2.from_array(
+                        icp_est.values if icp_est.kind == "pose" else icp_est.diagnostics["T_reference_query"]
+                    )  # the reference sits at the origin of the world here
                     eti, eri = _errors(true, T_icp)
                     diag.update(
                         icp_error_translation_m=eti,
