@@ -143,8 +143,10 @@ def bench_sample(max_queries: int) -> None:
         tallies["compass unseeded"].add(ec, truth.theta, t, pair_truth)
         er, t = _timed(r_step.estimate, pr, q, Hypotheses())
         tallies["correlation unseeded"].add(er, truth.theta, t)
-    print(f"\n== sample scenario {SAMPLE.relative_to(REPO)} ({len(scenario.queries)} queries; prepare: compass "
-          f"{1e3 * tpc:.0f} ms, correlation {1e3 * tpr:.0f} ms) ==")
+    print(
+        f"\n== sample scenario {SAMPLE.relative_to(REPO)} ({len(scenario.queries)} queries; prepare: compass "
+        f"{1e3 * tpc:.0f} ms, correlation {1e3 * tpr:.0f} ms) =="
+    )
     print(HEADER)
     for k, v in tallies.items():
         print(v.row(k))
@@ -207,8 +209,10 @@ def bench_sim_accuracy(n: int) -> None:
     ref = Reference(panorama=pano, cloud=cloud, T_world_reference=t_ref)
     cc = compass.CompassConfig(record_pairs=True)
     pc, pr = compass.prepare(ref, cc), correlation.prepare(ref)
-    print(f"\n== simulated apartment, reference {t_ref}, {n} camera queries (320×240) per row; hypotheses: odometry pose "
-          "with position σ as given and heading σ 2°; the correlation also gets the compass ==")
+    print(
+        f"\n== simulated apartment, reference {t_ref}, {n} camera queries (320×240) per row; hypotheses: odometry pose "
+        "with position σ as given and heading σ 2°; the correlation also gets the compass =="
+    )
     print(HEADER)
     cases = [
         ((0.0, 2.0), 0.005, "clean"),
@@ -287,15 +291,19 @@ def bench_scenario(directory: Path, max_queries: int) -> None:
                 err = math.remainder(est.value("theta") - case.truth.theta, 2 * math.pi)
                 rows[(name, step)].append((sec, est.reliable, err, est.sigma("theta")))
     print(f"\n== scenario {directory} ({len(rows[('default', 'compass')])} queries), seeded as in the pipeline ==")
-    print(f"{'compass variant / step':34s} {'cpu ms med':>10s} {'p95':>7s} {'reliable':>8s} {'med err°':>8s} "
-          f"{'rmse°':>7s} {'NEES':>6s} {'>3σ':>4s}")
+    print(
+        f"{'compass variant / step':34s} {'cpu ms med':>10s} {'p95':>7s} {'reliable':>8s} {'med err°':>8s} "
+        f"{'rmse°':>7s} {'NEES':>6s} {'>3σ':>4s}"
+    )
     for (name, step), r in rows.items():
         sec = np.array([x[0] for x in r]) * 1e3
         rel = [x for x in r if x[1]]
         err = np.degrees(np.abs([x[2] for x in rel])) if rel else np.array([math.nan])
         z2 = np.array([(x[2] / x[3]) ** 2 for x in rel]) if rel else np.array([math.nan])
-        print(f"{name + ' / ' + step:34s} {np.median(sec):10.1f} {np.percentile(sec, 95):7.1f} {len(rel) / len(r):8.2f} "
-              f"{np.median(err):8.3f} {math.sqrt(np.mean(err**2)):7.2f} {np.mean(z2):6.2f} {int(np.sum(z2 > 9.0)):4d}")
+        print(
+            f"{name + ' / ' + step:34s} {np.median(sec):10.1f} {np.percentile(sec, 95):7.1f} {len(rel) / len(r):8.2f} "
+            f"{np.median(err):8.3f} {math.sqrt(np.mean(err**2)):7.2f} {np.mean(z2):6.2f} {int(np.sum(z2 > 9.0)):4d}"
+        )
 
 
 def main() -> None:

@@ -328,8 +328,15 @@ def plot_nees_on_axes(ax: Axes, report: EvaluationReport, *, max_nees: float = 2
     ax.plot(x, chi2.pdf(x, 3), color="black", lw=1.5, label="χ²(3) density (calibrated)")
     if v.size:
         over = int(np.count_nonzero(v > max_nees))
-        ax.hist(np.minimum(v, max_nees * 0.9999), bins=bins, range=(0.0, max_nees), density=True,
-                color="#4c8bc9", alpha=0.7, label=f"NEES of {v.size} results (mean {v.mean():.2f}, median {np.median(v):.2f})")
+        ax.hist(
+            np.minimum(v, max_nees * 0.9999),
+            bins=bins,
+            range=(0.0, max_nees),
+            density=True,
+            color="#4c8bc9",
+            alpha=0.7,
+            label=f"NEES of {v.size} results (mean {v.mean():.2f}, median {np.median(v):.2f})",
+        )
         if over:
             ax.plot([], [], " ", label=f"{over} above {max_nees:g} (in last bin)")
     ax.axvline(chi2.ppf(0.99, 3), color="#d9534f", ls="--", lw=1.0, label="99 % bound (11.34); χ²(3) median 2.37")

@@ -13,8 +13,16 @@ from factorloc.benchmarking import BenchSettings, fit_exponent, run_bench, scale
 from factorloc.estimators.base import Hypotheses
 from factorloc.evaluation import Case, EvaluationSet
 
-_SEGMENTS = [((0, 0), (5, 0)), ((5, 0), (5, 4)), ((5, 4), (0, 4)), ((0, 4), (0, 0)),
-             ((2, 1.5), (3, 1.5)), ((3, 1.5), (3, 2.2)), ((3, 2.2), (2, 2.2)), ((2, 2.2), (2, 1.5))]
+_SEGMENTS = [
+    ((0, 0), (5, 0)),
+    ((5, 0), (5, 4)),
+    ((5, 4), (0, 4)),
+    ((0, 4), (0, 0)),
+    ((2, 1.5), (3, 1.5)),
+    ((3, 1.5), (3, 2.2)),
+    ((3, 2.2), (2, 2.2)),
+    ((2, 2.2), (2, 1.5)),
+]
 
 
 def _room(rng: np.random.Generator, per_m: int = 30) -> np.ndarray:

@@ -348,9 +348,7 @@ def _seed(hypotheses: Hypotheses, theta_reference_rad: float) -> tuple[float, fl
 
 def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None, reason: str, **diag: Any) -> Estimate:
     theta = seed[0] if seed is not None else 0.0
-    return Estimate.heading(
-        STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag
-    )
+    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag)
 
 
 def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:
@@ -552,9 +550,7 @@ def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, c
         problems.append(f"σθ2 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
     reliable = not problems
     reason = f"{n_in} inlier pairs of {len(qi)} matches" if reliable else "; ".join(problems)
-    return Estimate.heading(
-        STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag
-    )
+    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag)
 
 
 def _position_sensitivity(

@@ -427,9 +427,7 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     # after the warp the residual scale is near 1: no pyramid (small templates of coarse levels match by chance)
     n = 0 if position is not None else config.pyramid_steps
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
-    curves = [
-        cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None
-    ]
+    curves = [cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None]
     if not curves:
         return _unreliable(prepared, theta_fallback, "no view fits the reference pyramid", **base)
     searched = sum(cv.positions for cv in curves)
@@ -460,9 +458,7 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
     scale = config.pyramid_ratio ** (-m_ref)
     if not at_edge and abs(m_ref) > 0.05:
         # refinement pass at the refined scale: the views resized by 1/scale against the full reference
-        fine = _level_curve(
-            prepared, strips, m_ref, 0, 1.0 / scale, (float(wrap_angle(theta)), 3.0 * best.beta), config, offsets
-        )
+        fine = _level_curve(prepared, strips, m_ref, 0, 1.0 / scale, (float(wrap_angle(theta)), 3.0 * best.beta), config, offsets)
         if fine is not None and fine.c.size >= 3:
             kf = int(np.argmax(fine.c))
             if 0 < kf < fine.c.size - 1:

@@ -216,8 +216,11 @@ def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) 
     for _ in range(iterations):
         if not inliers.any():
             break
-        theta = float(wrap_angle(theta + math.atan2(np.sin(wrap_angle(v[inliers] - theta)).mean(),
-                                                    np.cos(wrap_angle(v[inliers] - theta)).mean())))
+        theta = float(
+            wrap_angle(
+                theta + math.atan2(np.sin(wrap_angle(v[inliers] - theta)).mean(), np.cos(wrap_angle(v[inliers] - theta)).mean())
+            )
+        )
         inliers = np.abs(wrap_angle(v - theta)) <= band_rad
     far = np.abs(wrap_angle(v - theta)) > 3.0 * band_rad
     runner_up = int(support[far].max()) if far.any() else 0
@@ -271,7 +274,6 @@ def nearest_circular_distance(angles_rad: np.ndarray, targets_rad: np.ndarray) -
     lo = np.abs(aw - ext[np.clip(k - 1, 0, ext.size - 1)])
     hi = np.abs(ext[np.clip(k, 0, ext.size - 1)] - aw)
     return np.minimum(lo, hi)
-
 
 
 def competing_mode(votes_rad: np.ndarray, theta_rad: float, band_rad: float) -> tuple[int, float]:

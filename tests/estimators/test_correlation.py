@@ -35,8 +35,9 @@ def _views(eq, n, rng, fault):
         cam = photo.camera_view(eq, heading, yaw, width_px=320, height_px=240)
         img = cam.image_bgr
         if fault == "lighting":
-            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
-                                    blur_sigma_px=0.7, rng=rng)
+            img = photo.photometric(
+                img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0, blur_sigma_px=0.7, rng=rng
+            )
         elif fault == "occlusion":
             img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
         yield heading, CameraImage(img, cam.hfov_rad, cam.yaw_in_robot_rad)
@@ -187,15 +188,18 @@ def sim_queries(world, n, d_range_m, sigma_position_m, fault, seed):
         cam = render_camera(world, Pose2(x, y, theta), PinholeCamera(width_px=320, height_px=240))
         img = cam.image_bgr
         if fault == "lighting":
-            img = photo.photometric(img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0,
-                                    blur_sigma_px=0.7, rng=rng)
+            img = photo.photometric(
+                img, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0, blur_sigma_px=0.7, rng=rng
+            )
         elif fault == "occlusion":
             img = photo.occlude(img, 0.3, rng=rng, n_blocks=2)
         s_th = math.radians(2.0)
         odo = Pose2(x + rng.normal(0, sigma_position_m), y + rng.normal(0, sigma_position_m), theta + rng.normal(0, s_th))
         made += 1
-        yield theta, Query(images=(CameraImage(img, cam.hfov_rad),)), Hypotheses(
-            (Estimate.pose("odometry", odo, sigma_position_m, sigma_position_m, s_th),)
+        yield (
+            theta,
+            Query(images=(CameraImage(img, cam.hfov_rad),)),
+            Hypotheses((Estimate.pose("odometry", odo, sigma_position_m, sigma_position_m, s_th),)),
         )
 
 

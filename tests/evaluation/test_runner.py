@@ -32,8 +32,17 @@ STABLE_KEYS = (
 class NoisyPoseStep:
     """A full-pose step: truth + N(0, σ²·scale²) noise, claims σ; unreliable on queries tagged ``blind_tag``."""
 
-    def __init__(self, name: str, truth: dict[str, Pose2], sigmas: Sequence[float], seed: int, *, error_scale: float = 1.0,
-                 blind_tag: str = "", tags: dict[str, tuple[str, ...]] | None = None) -> None:
+    def __init__(
+        self,
+        name: str,
+        truth: dict[str, Pose2],
+        sigmas: Sequence[float],
+        seed: int,
+        *,
+        error_scale: float = 1.0,
+        blind_tag: str = "",
+        tags: dict[str, tuple[str, ...]] | None = None,
+    ) -> None:
         self.name = name
         self.truth, self.sigmas = truth, np.asarray(sigmas)
         self.rng = np.random.default_rng(seed)
@@ -46,8 +55,13 @@ class NoisyPoseStep:
         t = self.truth[query.id].as_array()
         v = t + self.error_scale * self.sigmas * self.rng.normal(size=3)
         reliable = self.blind_tag not in self.tags.get(query.id, ())
-        return Estimate.pose(self.name, Pose2.from_array(v), *self.sigmas, reliable=reliable,
-                             reason="ok" if reliable else f"only {int(self.rng.integers(3, 9))} matches < 10")
+        return Estimate.pose(
+            self.name,
+            Pose2.from_array(v),
+            *self.sigmas,
+            reliable=reliable,
+            reason="ok" if reliable else f"only {int(self.rng.integers(3, 9))} matches < 10",
+        )
 
 
 class HeadingStep:
@@ -116,8 +130,10 @@ def test_overconfident_step_shows_in_nees_and_in_its_own_false_positives() -> No
 
 def test_json_has_the_stable_keys_per_fault_and_per_step_and_is_strict_json() -> None:
     data, truth, tags = _dataset(12, faulty_every=3)
-    steps = [NoisyPoseStep("odometry", truth, [0.05, 0.05, 0.02], 1),
-             NoisyPoseStep("icp", truth, [0.02, 0.02, 0.01], 2, blind_tag="occlusion", tags=tags)]
+    steps = [
+        NoisyPoseStep("odometry", truth, [0.05, 0.05, 0.02], 1),
+        NoisyPoseStep("icp", truth, [0.02, 0.02, 0.01], 2, blind_tag="occlusion", tags=tags),
+    ]
     out = evaluate(data, steps=steps).to_json_dict()
     text = json.dumps(out, allow_nan=False)  # no NaN/inf leak into the JSON
     assert json.loads(text)["schema_version"] == 1
@@ -249,8 +265,14 @@ def test_a_scenario_with_two_references_localizes_each_query_against_its_own() -
     )
     truth = {f"q{i}": Pose2(1.0 + i, 0.0, 0.0) for i in range(4)}
     queries = tuple(
-        ScenarioQuery(Query(id=k), timestamp_s=float(i), truth=v, faults=("blur",) if i == 3 else (),
-                      reference_id="hall" if i < 2 else "kitchen", distance_from_reference_m=None if i else 7.5)
+        ScenarioQuery(
+            Query(id=k),
+            timestamp_s=float(i),
+            truth=v,
+            faults=("blur",) if i == 3 else (),
+            reference_id="hall" if i < 2 else "kitchen",
+            distance_from_reference_m=None if i else 7.5,
+        )
         for i, (k, v) in enumerate(truth.items())
     )
     step = ReferenceEcho(truth)
