@@ -303,10 +303,10 @@ def relations_benchmark(
                     "localize_seconds": dt,
                 }
                 nees_icp = math.nan
-                heading_only = icp_est is not None and _position_not_measured(icp_est)
-                if heading_only:
-                    # degenerate geometry: the step vouches for no full position (heading-only, or unknown along the
-                    # corridor); its row shows the pose ICP converged to (slid along the corridor), unreliable
+                # degenerate geometry (heading-only, or a position unknown along a corridor): the step vouches for no
+                # full position; its row shows the pose ICP converged to (slid along the corridor), unreliable
+                no_full_position = icp_est is not None and _position_not_measured(icp_est)
+                if icp_est is not None:
                     T_icp = Pose2.from_array(
                         icp_est.values if icp_est.kind == "pose" else icp_est.diagnostics["T_reference_query"]
                     )  # the reference sits at the origin of the world here
@@ -314,22 +314,17 @@ def relations_benchmark(
                     diag.update(
                         icp_error_translation_m=eti,
                         icp_error_rotation_deg=eri,
-                        icp_reliable=False,
-                        icp_heading_only=True,
-                        icp_heading_error_rad=abs(math.remainder(icp_est.values[0] - true.theta, 2 * math.pi)),
+                        icp_heading_error_rad=abs(math.remainder(T_icp.theta - true.theta, 2 * math.pi)),
+                        icp_reliable=icp_est.reliable and not no_full_position,
                     )
+                if no_full_position:
+                    diag.update(icp_no_full_position=True)
                 elif icp_est is not None:
-                    T_icp = Pose2.from_array(icp_est.values)
-                    eti, eri = _errors(true, T_icp)
                     e = _position_error_world(true, T_icp)
                     nees_icp = float(e @ np.linalg.solve(icp_est.covariance[:2, :2], e))
                     diag.update(
-                        icp_error_translation_m=eti,
-                        icp_error_rotation_deg=eri,
                         icp_nees_position=nees_icp,
-                        icp_reliable=icp_est.reliable,
                         icp_sigma_theta_rad=icp_est.sigma("theta"),
-                        icp_heading_error_rad=abs(math.remainder(T_icp.theta - true.theta, 2 * math.pi)),
                         **{
                             k: v
                             for k, v in icp_est.diagnostics.items()
@@ -339,7 +334,7 @@ def relations_benchmark(
                 used_global = bool(icp_est is not None and icp_est.diagnostics.get("used_global_init", False))
                 out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, icp_seconds, d2, used_global, diag))
                 if "ours_icp" in methods:
-                    if heading_only:
+                    if no_full_position:
                         out.append(
                             RelationResult("ours_icp", i, kind, eti, eri, False, False, icp_seconds, math.nan, False, diag)
                         )
