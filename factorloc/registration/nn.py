@@ -217,6 +217,34 @@ def build_grid(x: np.ndarray, y: np.ndarray, cell_m: float, max_cells: int) -> t
 
 
 @njit(cache=True, inline="always")
+def _search_box(qx: float, qy: float, geo: np.ndarray, bound2: float) -> tuple[bool, int, int, int, int, int, int]:
+    """The cells a search of radius ``sqrt(bound2)`` around ``(qx, qy)`` may read (:func:`build_grid`'s ``geo``).
+
+    Returns ``(inside, ix0, ix1, iy0, iy1, cx, cy)``: ``inside`` is false when the square of half-side
+    ``sqrt(bound2) + slack`` misses the grid (also for NaN: nothing to find); the cell ranges are inclusive and
+    clipped to the grid; ``(cx, cy)`` is the query's own cell, ``(-1, -1)`` when the query lies outside the grid.
+    """
+    x0, y0, slack, inv_h = geo[0], geo[1], geo[5], geo[6]
+    gx, gy = int(geo[3]), int(geo[4])
+    rad = math.sqrt(bound2) + slack
+    fx0 = (qx - rad - x0) * inv_h
+    fx1 = (qx + rad - x0) * inv_h
+    fy0 = (qy - rad - y0) * inv_h
+    fy1 = (qy + rad - y0) * inv_h
+    if not (fx1 >= 0.0 and fy1 >= 0.0 and fx0 < gx and fy0 < gy):
+        return False, 0, -1, 0, -1, -1, -1
+    ix0 = int(math.floor(max(fx0, 0.0)))
+    ix1 = min(int(math.floor(min(fx1, gx - 1.0))), gx - 1)
+    iy0 = int(math.floor(max(fy0, 0.0)))
+    iy1 = min(int(math.floor(min(fy1, gy - 1.0))), gy - 1)
+    cx = int(math.floor(min(max((qx - x0) * inv_h, -1.0), float(gx))))
+    cy = int(math.floor(min(max((qy - y0) * inv_h, -1.0), float(gy))))
+    if not (0 <= cx < gx and 0 <= cy < gy):
+        cx, cy = -1, -1
+    return True, ix0, ix1, iy0, iy1, cx, cy
+
+
+@njit(cache=True, inline="always")
 def grid_nearest(qx: float, qy: float, pts: np.ndarray, start: np.ndarray, geo: np.ndarray, bound2: float) -> tuple[float, int]:
     """Exact nearest neighbour of ``(qx, qy)`` closer than ``sqrt(bound2)`` among the grid's points.
 
@@ -229,25 +257,14 @@ def grid_nearest(qx: float, qy: float, pts: np.ndarray, start: np.ndarray, geo: 
     unless it lies farther than the best distance so far. Queries outside the grid, however far, cost
     one box test.
     """
-    x0, y0, h, slack, inv_h = geo[0], geo[1], geo[2], geo[5], geo[6]
-    gx, gy = int(geo[3]), int(geo[4])
-    rad = math.sqrt(bound2) + slack
-    fx0 = (qx - rad - x0) * inv_h
-    fx1 = (qx + rad - x0) * inv_h
-    fy0 = (qy - rad - y0) * inv_h
-    fy1 = (qy + rad - y0) * inv_h
-    # also false for NaN: nothing to find
-    if not (fx1 >= 0.0 and fy1 >= 0.0 and fx0 < gx and fy0 < gy):
+    x0, y0, h, slack = geo[0], geo[1], geo[2], geo[5]
+    gy = int(geo[4])
+    inside, ix0, ix1, iy0, iy1, cx, cy = _search_box(qx, qy, geo, bound2)
+    if not inside:
         return math.inf, -1
-    ix0 = int(math.floor(max(fx0, 0.0)))
-    ix1 = min(int(math.floor(min(fx1, gx - 1.0))), gx - 1)
-    iy0 = int(math.floor(max(fy0, 0.0)))
-    iy1 = min(int(math.floor(min(fy1, gy - 1.0))), gy - 1)
     best, bk = bound2, -1
     # the query's own cell first (when in the grid): its points are the likeliest nearest
-    cx = int(math.floor(min(max((qx - x0) * inv_h, -1.0), float(gx))))
-    cy = int(math.floor(min(max((qy - y0) * inv_h, -1.0), float(gy))))
-    if 0 <= cx < gx and 0 <= cy < gy:
+    if cx >= 0:
         c = cx * gy + cy
         for k in range(start[c], start[c + 1]):
             dx = pts[k, 0] - qx
@@ -292,23 +309,13 @@ def grid_nearest2(
     With it a caller can keep a nearest neighbour while the query moves by ``δ``: the point found stays the
     nearest as long as its distance is below ``sqrt(second) − δ``.
     """
-    x0, y0, h, slack, inv_h = geo[0], geo[1], geo[2], geo[5], geo[6]
-    gx, gy = int(geo[3]), int(geo[4])
-    rad = math.sqrt(bound2) + slack
-    fx0 = (qx - rad - x0) * inv_h
-    fx1 = (qx + rad - x0) * inv_h
-    fy0 = (qy - rad - y0) * inv_h
-    fy1 = (qy + rad - y0) * inv_h
-    if not (fx1 >= 0.0 and fy1 >= 0.0 and fx0 < gx and fy0 < gy):
+    x0, y0, h, slack = geo[0], geo[1], geo[2], geo[5]
+    gy = int(geo[4])
+    inside, ix0, ix1, iy0, iy1, cx, cy = _search_box(qx, qy, geo, bound2)
+    if not inside:
         return math.inf, -1, bound2
-    ix0 = int(math.floor(max(fx0, 0.0)))
-    ix1 = min(int(math.floor(min(fx1, gx - 1.0))), gx - 1)
-    iy0 = int(math.floor(max(fy0, 0.0)))
-    iy1 = min(int(math.floor(min(fy1, gy - 1.0))), gy - 1)
     best, bk, second = bound2, -1, bound2
-    cx = int(math.floor(min(max((qx - x0) * inv_h, -1.0), float(gx))))
-    cy = int(math.floor(min(max((qy - y0) * inv_h, -1.0), float(gy))))
-    if 0 <= cx < gx and 0 <= cy < gy:
+    if cx >= 0:
         c = cx * gy + cy
         for k in range(start[c], start[c + 1]):
             dx = pts[k, 0] - qx
