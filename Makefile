@@ -39,7 +39,7 @@ browser:
 	@command -v chromium >/dev/null 2>&1 || { \
 	  echo "installing chromium for the documentation smoke check"; \
 	  ( $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq chromium ) \
-	  || echo "chromium could not be installed: the site smoke check will be skipped"; }
+	  || echo "chromium could not be installed: the site smoke check will fail under make test"; }
 
 # Build the site into ./site; the notebooks are executed on the way (docs/hooks.py).
 docs: setup browser
@@ -49,7 +49,7 @@ docs-serve: setup
 	$(DOCS_ENV) $(BIN)/mkdocs serve -f docs/mkdocs.yml
 
 test: docs
-	$(BIN)/python -m pytest -n 2 -q
+	FACTORLOC_REQUIRE_SITE=1 $(BIN)/python -m pytest -n 2 -q
 
 lint: setup
 	$(BIN)/ruff check factorloc tests benchmarks

@@ -3,17 +3,22 @@
 ``make test`` builds the site (``make docs``) before running the tests. The
 check opens the home page and the first tutorial as a browser would (offline,
 with the flags a closed network needs) and asserts that each page's main
-heading and at least one rendered figure are there. It skips, saying why, when
-the site has not been built or no Chromium is installed.
+heading and at least one rendered figure are there. Run alone (``pytest``), it
+skips, saying why, when the site has not been built or no Chromium is installed;
+under ``make test`` (which sets ``FACTORLOC_REQUIRE_SITE=1`` after building the
+site and installing Chromium) either absence is a failure, so that the check
+cannot pass by not running.
 """
 
 from __future__ import annotations
 
 import base64
+import os
 import re
 import shutil
 import subprocess
 from pathlib import Path
+from typing import NoReturn
 
 import pytest
 
@@ -28,11 +33,18 @@ FLAGS = [
 ]
 
 
+def _unavailable(reason: str) -> NoReturn:
+    """Skip when run alone; fail under ``make test``, which promised the site and the browser."""
+    if os.environ.get("FACTORLOC_REQUIRE_SITE") == "1":
+        pytest.fail(f"{reason} (FACTORLOC_REQUIRE_SITE=1: make test builds the site and installs Chromium first)")
+    pytest.skip(reason)
+
+
 @pytest.fixture(scope="module")
 def site(repo_root: Path) -> Path:
     index = repo_root / "site" / "index.html"
     if not index.is_file():
-        pytest.skip(f"the documentation site is not built ({index} missing): run `make docs`")
+        _unavailable(f"the documentation site is not built ({index} missing): run `make docs`")
     return index.parent
 
 
@@ -42,7 +54,7 @@ def chromium() -> str:
         path = shutil.which(name)
         if path:
             return path
-    pytest.skip("Chromium is not installed (Debian: apt-get install chromium; `make docs` installs it when it can)")
+    _unavailable("Chromium is not installed (Debian: apt-get install chromium; `make docs` installs it when it can)")
 
 
 def _dom(chromium: str, page: Path, profile: Path) -> str:
