@@ -42,7 +42,6 @@ from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 from scipy.stats import chi2
 
 from factorloc.errors import ConfigError, InputError
@@ -57,7 +56,13 @@ from factorloc.registration.covariance import (
 from factorloc.registration.global_search import GlobalSearchParams, LikelihoodField, reference_fields, search
 from factorloc.registration.icp2d import IcpParams, IcpResult, PreparedScan, align, prepare_target
 from factorloc.registration.kernels import kernel_from_name
-from factorloc.registration.scan2d import ScanExtraction, extract_scan, free_space_violation, polar_profile
+from factorloc.registration.scan2d import (
+    ScanExtraction,
+    alignment_violation,
+    extract_scan,
+    overlap_fitness,
+    polar_profile,
+)
 from factorloc.types import Estimate, Query, Reference
 
 log = logging.getLogger(__name__)
@@ -487,10 +492,9 @@ def _covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
 
 
 def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, T: Pose2) -> float:
-    """Free-space violation of an alignment, the larger of the two directions."""
-    v_q = free_space_violation(prepared.profile, T.transform_points(points))
-    v_r = free_space_violation(profile, T.inverse().transform_points(prepared.points_m))
-    return max(v_q, v_r)
+    """Free-space violation of an alignment, the larger of the two directions (one compiled call,
+    :func:`~factorloc.registration.scan2d.alignment_violation`)."""
+    return alignment_violation(prepared.profile, prepared.points_m, profile, points, T)
 
 
 def _overlap_fitness(
@@ -500,26 +504,10 @@ def _overlap_fitness(
 
     A point of one scan, put in the other sensor's frame, is *visible* to that sensor when its bearing lies in a
     bin with a return (inside the field of view) and it is not farther than that bin's free range (not hidden
-    behind what the sensor saw); it fits when a point of the other scan lies within ``fitness_distance_m``.
+    behind what the sensor saw); it fits when a point of the other scan lies within ``fitness_distance_m``
+    (compiled: :func:`~factorloc.registration.scan2d.overlap_fitness`).
     """
-    d = config.icp.fitness_distance_m
-    out = []
-    q_in_r = T.transform_points(points)
-    r_in_q = T.inverse().transform_points(prepared.points_m)
-    for pts, prof, other in ((q_in_r, prepared.profile, prepared.points_m), (r_in_q, profile, points)):
-        n_bins = len(prof)
-        b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64) % n_bins
-        free = prof[b]
-        rho = np.hypot(pts[:, 0], pts[:, 1])
-        vis = np.isfinite(free) & (rho <= free + np.maximum(0.15, 0.05 * np.nan_to_num(free)))
-        n = int(vis.sum())
-        if n == 0:
-            out.append((0.0, 0))
-            continue
-        dist, _ = cKDTree(other).query(pts[vis], distance_upper_bound=d)
-        out.append((float(np.mean(dist < d)), n))
-    (f1, n1), (f2, n2) = out
-    return min(f1, f2), min(n1, n2)
+    return overlap_fitness(prepared.profile, prepared.points_m, profile, points, T, config.icp.fitness_distance_m)
 
 
 def constraint_strength(result: IcpResult) -> float:

@@ -29,6 +29,7 @@ definite and the direction is down-weighted or gated downstream.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from factorloc.errors import InputError
 from factorloc.registration.icp2d import IcpResult
@@ -130,27 +131,94 @@ def censi_bias_covariance(result: IcpResult, scale: float, sigma_bias_m: float, 
     """``scale · censi_covariance(result) + bias_covariance(result, sigma_bias_m)`` from one eigen-decomposition of H.
 
     The same figures as the two calls (to rounding, ~1e-12 m²) when H has
-    full rank for both (the usual case); otherwise it falls back to them.
+    full rank for both (the usual case, computed in one compiled call,
+    :func:`_censi_bias_core`); otherwise it falls back to them.
     """
     _check(result)
     J, w, r = result.jacobians, result.weights, result.residuals_m
-    sw = float(np.sum(w)) if len(w) else 0.0
-    if len(r) >= 4 and sw > 0.0:
-        h = 0.5 * (result.hessian + result.hessian.T)
-        lam, vec = np.linalg.eigh(h)
-        floor = max(1e-9 * max(float(lam[-1]), 0.0), 1.0 / max_variance)
-        if sigma_bias_m > 0.0:
-            floor = max(floor, sw * sigma_bias_m**2 / max_variance)
-        if lam[0] > floor:
-            inv = (vec / lam) @ vec.T
-            meat = (J.T * (w * w * (result.variances_m2 + r * r))) @ J
-            c = inv @ meat @ inv
-            cov = scale * 0.5 * (c + c.T)
-            if sigma_bias_m > 0.0:
-                cov = cov + (sigma_bias_m**2 * sw) * inv
-            if np.all(np.diag(cov) < max_variance):
-                return 0.5 * (cov + cov.T)
+    if len(r) >= 4:
+        ok, cov = _censi_bias_core(
+            result.hessian, J, w, r, result.variances_m2, float(scale), float(sigma_bias_m), float(max_variance)
+        )
+        if ok:
+            return cov
     cov = scale * censi_covariance(result, max_variance)
     if sigma_bias_m > 0.0:
         cov = cov + bias_covariance(result, sigma_bias_m, max_variance)
     return cov
+
+
+@njit(cache=True)
+def _censi_bias_core(
+    hessian: np.ndarray,
+    J: np.ndarray,
+    w: np.ndarray,
+    r: np.ndarray,
+    var: np.ndarray,
+    scale: float,
+    sigma_bias_m: float,
+    max_variance: float,
+) -> tuple[bool, np.ndarray]:
+    """:func:`censi_bias_covariance`'s full-rank case, compiled: ``(True, Σ)``, or ``(False, ·)`` when H (its
+    symmetric part) has an eigenvalue at or below the floor, Σw ≤ 0, or a variance reaches ``max_variance``.
+
+    ``H⁻¹ = V Λ⁻¹ Vᵀ`` (``numpy.linalg.eigh``), ``Σ = scale · sym(H⁻¹ M H⁻¹) + σ_b² Σwᵢ · H⁻¹`` with the
+    meat ``M = Σ wᵢ² (σᵢ² + rᵢ²) JᵢJᵢᵀ`` (``J`` K×3 C-contiguous rows).
+    """
+    out = np.zeros((3, 3))
+    sw = 0.0
+    for i in range(len(w)):
+        sw += w[i]
+    if not sw > 0.0:
+        return False, out
+    h = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            h[a, b] = 0.5 * (hessian[a, b] + hessian[b, a])
+    lam, vec = np.linalg.eigh(h)
+    floor = max(1e-9 * max(lam[2], 0.0), 1.0 / max_variance)
+    if sigma_bias_m > 0.0:
+        floor = max(floor, sw * sigma_bias_m**2 / max_variance)
+    if not lam[0] > floor:
+        return False, out
+    inv = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for e in range(3):
+                acc += vec[a, e] / lam[e] * vec[b, e]
+            inv[a, b] = acc
+    meat = np.zeros((3, 3))
+    for i in range(len(w)):
+        f = w[i] * w[i] * (var[i] + r[i] * r[i])
+        for a in range(3):
+            for b in range(3):
+                meat[a, b] += J[i, a] * f * J[i, b]
+    tmp = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for e in range(3):
+                acc += inv[a, e] * meat[e, b]
+            tmp[a, b] = acc
+    c = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for e in range(3):
+                acc += tmp[a, e] * inv[e, b]
+            c[a, b] = acc
+    sb = sigma_bias_m**2 * sw
+    cov = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            cov[a, b] = scale * (0.5 * (c[a, b] + c[b, a]))
+            if sigma_bias_m > 0.0:
+                cov[a, b] += sb * inv[a, b]
+    for a in range(3):
+        if not cov[a, a] < max_variance:
+            return False, out
+    for a in range(3):
+        for b in range(3):
+            out[a, b] = 0.5 * (cov[a, b] + cov[b, a])
+    return True, out

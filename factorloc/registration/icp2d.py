@@ -43,7 +43,7 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.kernels import Cauchy, RobustKernel, weight_scalar
 from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, grid_nearest2
-from factorloc.registration.scan2d import estimate_normals_2d
+from factorloc.registration.scan2d import pca_normals
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
 
@@ -172,6 +172,22 @@ def _pack_target(
     return n_ext, c_ext, r2, packed, order, start, geo
 
 
+@njit(cache=True)
+def _prepare_core(pts: np.ndarray, d: np.ndarray, idx: np.ndarray, radius_m: float, cell_m: float, max_cells: int) -> tuple:
+    """:func:`prepare_target`'s work after the neighbour search (``d``, ``idx``: N×k, nearest first) in one compiled
+    call: the PCA line normals and their quality (:func:`~factorloc.registration.scan2d.pca_normals`), the
+    ranges, and :func:`_pack_target`'s derived arrays and grid."""
+    m = pts.shape[0]
+    normals = np.empty((m, 2))
+    quality = np.empty(m)
+    pca_normals(pts, d, idx, radius_m, normals, quality)
+    ranges = np.empty(m)
+    for i in range(m):
+        ranges[i] = math.hypot(pts[i, 0], pts[i, 1])
+    n_ext, c_ext, r2, packed, order, start, geo = _pack_target(pts, normals, quality, ranges, cell_m, max_cells)
+    return normals, quality, ranges, n_ext, c_ext, r2, packed, order, start, geo
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedScan:
     """A target scan ready for ICP: points (M×2 m), unit line normals (M×2), their quality (M,), a KD-tree
@@ -242,7 +258,8 @@ class PreparedScan:
 
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
-    """Build the KD-tree, PCA line normals and search grid of a target scan (once per reference).
+    """Build the KD-tree, PCA line normals and search grid of a target scan (once per reference): one batched
+    k-nearest-neighbour search of the tree, then one compiled pass (:func:`_prepare_core`).
 
     Raises :class:`~factorloc.errors.InputError` on fewer than 3 points, non-finite points or coordinates
     beyond :data:`MAX_COORDINATE_M`.
@@ -256,11 +273,35 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
     if pts is points_m and pts.flags.writeable:
         pts = pts.copy()  # the caller's array stays writable; ours is frozen
     tree = KdTree2D(pts)
-    normals, quality = estimate_normals_2d(pts, params.normal_k, params.normal_radius_m, tree)
-    ranges = np.hypot(pts[:, 0], pts[:, 1])
-    for a in (pts, normals, quality, ranges):
+    m = len(pts)
+    kk = min(params.normal_k, m)
+    d, idx = tree.nearest_lifted(tree.lifted, kk)
+    out = _prepare_core(pts, d.reshape(m, kk), idx.reshape(m, kk), float(params.normal_radius_m), GRID_CELL_M, GRID_MAX_CELLS)
+    for a in (pts,) + out:
         a.setflags(write=False)
-    return PreparedScan(pts, normals, quality, tree, ranges)
+    normals, quality, ranges = out[:3]
+    # the PreparedScan without its constructor's checks and packing: every array was made above from the checked points
+    target = object.__new__(PreparedScan)
+    for name, a in zip(
+        (
+            "points_m",
+            "normals",
+            "quality",
+            "tree",
+            "ranges_m",
+            "n_ext",
+            "c_ext",
+            "range2_ext",
+            "packed",
+            "grid_order",
+            "grid_start",
+            "grid_geo",
+        ),
+        (pts, normals, quality, tree, ranges) + out[3:],
+        strict=True,
+    ):
+        object.__setattr__(target, name, a)
+    return target
 
 
 MAX_COORDINATE_M = 1e9

@@ -70,6 +70,8 @@ class KdTree2D:
         M×2 points, M ≥ 1.
     backend
         ``"auto"`` (small_gicp when installed), ``"small_gicp"`` or ``"scipy"``.
+
+    The backend's tree is built on the first query (the points are validated at construction).
     """
 
     def __init__(self, points_m: np.ndarray, backend: str = "auto") -> None:
@@ -81,15 +83,28 @@ class KdTree2D:
         if backend == "small_gicp" and _small_gicp is None:
             raise InputError("KdTree2D backend 'small_gicp' requested but the small_gicp package is not installed")
         self.n = len(pts)
-        self.lifted = lift_2d(pts)
-        """The points lifted to 3D (M×3, z = :data:`LIFT_Z`), read-only."""
-        self.lifted.setflags(write=False)
+        self._pts = pts
+        self._lifted: np.ndarray | None = None
+        self._scipy = backend == "scipy" or _small_gicp is None
         self._sg = None
         self._ck = None
-        if backend != "scipy" and _small_gicp is not None:
-            self._sg = _small_gicp.KdTree(self.lifted, num_threads=1)
+
+    @property
+    def lifted(self) -> np.ndarray:
+        """The points lifted to 3D (M×3, z = :data:`LIFT_Z`), read-only (made on first use)."""
+        if self._lifted is None:
+            lifted = lift_2d(self._pts)
+            lifted.setflags(write=False)
+            self._lifted = lifted
+        return self._lifted
+
+    def _tree(self) -> None:
+        """Build the backend's tree (on the first query: :func:`factorloc.registration.icp2d.prepare_target` makes
+        a tree per reference that only the numpy reference implementations in the tests query)."""
+        if self._scipy:
+            self._ck = cKDTree(self._pts)
         else:
-            self._ck = cKDTree(pts)
+            self._sg = _small_gicp.KdTree(self.lifted, num_threads=1)
 
     @classmethod
     def from_lifted(cls, lifted: np.ndarray) -> KdTree2D:
@@ -97,12 +112,10 @@ class KdTree2D:
         :func:`lift_2d` makes them: no validation, no copy (the caller must not modify them)."""
         self = cls.__new__(cls)
         self.n = len(lifted)
-        self.lifted = lifted
+        self._pts = np.ascontiguousarray(lifted[:, :2])
+        self._lifted = lifted
+        self._scipy = _small_gicp is None
         self._sg = self._ck = None
-        if _small_gicp is not None:
-            self._sg = _small_gicp.KdTree(lifted, num_threads=1)
-        else:
-            self._ck = cKDTree(lifted[:, :2])
         return self
 
     def nearest_lifted(self, lifted: np.ndarray, k: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -113,6 +126,8 @@ class KdTree2D:
         The inner loop's query (no bound, no validation, no copies beyond the result): about 12 µs for 180
         points against 180 with small_gicp. Same values as :meth:`query` without a bound.
         """
+        if self._sg is None and self._ck is None:
+            self._tree()
         if self._ck is not None:
             return self._ck.query(lifted[:, :2], k=k, workers=1)
         idx, d2 = self._sg.batch_knn_search(lifted, k, num_threads=1)
@@ -134,6 +149,8 @@ class KdTree2D:
         ``d = inf`` and ``idx = M`` (cKDTree's convention).
         """
         x = np.asarray(points_m, dtype=np.float64)
+        if self._sg is None and self._ck is None:
+            self._tree()
         if self._ck is not None:
             return self._ck.query(x, k=k, distance_upper_bound=distance_upper_bound, workers=1)
         if len(x) == 0:

@@ -7,12 +7,14 @@ All points are N×2 (or N×3 for clouds) metres in the robot frame
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from factorloc.errors import InputError
-from factorloc.registration.nn import KdTree2D, lift_2d
+from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, lift_2d
 from factorloc.types import PointCloud, Scan
 
 __all__ = [
@@ -21,6 +23,7 @@ __all__ = [
     "extract_scan",
     "free_space_violation",
     "limit_count",
+    "overlap_fitness",
     "polar_profile",
     "voxel_downsample_2d",
 ]
@@ -128,17 +131,21 @@ def estimate_normals_2d(
     """Line normals and their quality by PCA over the ``k`` nearest neighbours.
 
     For each point, the covariance of its neighbours within ``max_radius_m``
-    is eigen-decomposed; the normal is the eigenvector of the smallest
-    eigenvalue, oriented towards the sensor (origin). The quality is
-    ``1 - λ_min/λ_max`` in [0, 1] (1 = perfectly straight); points with fewer
-    than 3 neighbours get quality 0 and a normal pointing at the sensor.
+    (among its ``k`` nearest, itself included) is eigen-decomposed; the
+    normal is the eigenvector of the smallest eigenvalue, oriented towards
+    the sensor (origin). The quality is ``1 - λ_min/λ_max`` in [0, 1] (1 =
+    perfectly straight); points with fewer than 3 neighbours get quality 0
+    and a normal pointing at the sensor.
+
+    The neighbours come from ``tree`` (a :class:`~factorloc.registration.nn.KdTree2D` on ``points_m``, built
+    when not given); the PCA runs compiled (:func:`pca_normals`).
 
     Returns
     -------
     normals : (N, 2) unit vectors
     quality : (N,) in [0, 1]
     """
-    pts = np.asarray(points_m, dtype=np.float64)
+    pts = np.ascontiguousarray(np.asarray(points_m, dtype=np.float64))
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise InputError(f"points_m must be N×2, got shape {pts.shape}")
     n = len(pts)
@@ -153,48 +160,62 @@ def estimate_normals_2d(
         lifted = lift_2d(pts)
     kk = min(k, n)
     d, idx = tree.nearest_lifted(lifted, kk)
-    idx = idx.reshape(n, kk)
-    # neighbours within the radius, relative to the point itself (no cancellation); the others weigh 0
-    vf = (d.reshape(n, kk) < max_radius_m).astype(np.float64)
-    x, y = pts[:, 0], pts[:, 1]
-    ux = x.take(idx)
-    ux -= x[:, None]
-    ux *= vf
-    uy = y.take(idx)
-    uy -= y[:, None]
-    uy *= vf
-    ones = np.ones(kk)
-    cnt = vf @ ones
-    sx, sy = ux @ ones, uy @ ones
-    inv = 1.0 / np.maximum(cnt, 1.0)
-    # scatter Σ (u − ū)(u − ū)ᵀ = Σ u uᵀ − (Σ u)(Σ u)ᵀ / cnt
-    sxx = np.einsum("ij,ij->i", ux, ux) - sx * sx * inv
-    syy = np.einsum("ij,ij->i", uy, uy) - sy * sy * inv
-    sxy = np.einsum("ij,ij->i", ux, uy) - sx * sy * inv
-    # closed-form eigen-decomposition of the 2×2 symmetric [[sxx, sxy], [sxy, syy]]
-    half_diff = 0.5 * (sxx - syy)
-    root = np.sqrt(half_diff * half_diff + sxy * sxy)
-    mean = 0.5 * (sxx + syy)
-    lmax = mean + root
-    lmin = mean - root
-    # direction of the line (largest eigenvalue): angle φ = 0.5·atan2(2 sxy, sxx − syy); normal (−sin φ, cos φ)
-    phi = 0.5 * np.arctan2(sxy, half_diff)
     normals = np.empty((n, 2))
-    np.sin(phi, out=normals[:, 0])
-    normals[:, 0] *= -1.0
-    np.cos(phi, out=normals[:, 1])
-    quality = lmin / np.maximum(lmax, 1e-300)
-    np.subtract(1.0, quality, out=quality)
-    quality *= lmax > 0.0  # all neighbours at one spot: no line
-    to_sensor = pts / -np.maximum(np.hypot(x, y), 1e-12)[:, None]
-    poor = cnt < 3.0
-    np.copyto(normals, to_sensor, where=poor[:, None])
-    quality[poor] = 0.0
-    # face the sensor
-    normals *= np.where(np.einsum("ij,ij->i", normals, to_sensor) < 0.0, -1.0, 1.0)[:, None]
-    np.maximum(quality, 0.0, out=quality)  # rounding: λmin may come out slightly negative
-    np.minimum(quality, 1.0, out=quality)
+    quality = np.empty(n)
+    pca_normals(pts, d.reshape(n, kk), idx.reshape(n, kk), float(max_radius_m), normals, quality)
     return normals, quality
+
+
+@njit(cache=True)
+def pca_normals(
+    pts: np.ndarray, d: np.ndarray, idx: np.ndarray, max_radius_m: float, normals: np.ndarray, quality: np.ndarray
+) -> None:
+    """The PCA of :func:`estimate_normals_2d`, compiled, in place: ``pts`` (N×2), ``d``/``idx`` (N×k) the
+    distances and indices of each point's k nearest neighbours (itself included), nearest first.
+
+    Per point, over its neighbours closer than ``max_radius_m``, relative to the point (no cancellation):
+    the scatter ``S = Σ u uᵀ − (Σ u)(Σ u)ᵀ / n``, its eigenvalues ``(sxx + syy)/2 ± √(((sxx − syy)/2)² + sxy²)``
+    and the line's direction ``φ = ½ atan2(2 sxy, sxx − syy)``; the normal ``(−sin φ, cos φ)`` faces the sensor
+    at the origin.
+    """
+    n, kk = d.shape
+    for i in range(n):
+        x, y = pts[i, 0], pts[i, 1]
+        cnt = 0
+        sx = sy = sxx = syy = sxy = 0.0
+        for j in range(kk):
+            if not d[i, j] < max_radius_m:
+                continue
+            cnt += 1
+            ux = pts[idx[i, j], 0] - x
+            uy = pts[idx[i, j], 1] - y
+            sx += ux
+            sy += uy
+            sxx += ux * ux
+            syy += uy * uy
+            sxy += ux * uy
+        inv = 1.0 / max(float(cnt), 1.0)
+        sxx -= sx * sx * inv
+        syy -= sy * sy * inv
+        sxy -= sx * sy * inv
+        half_diff = 0.5 * (sxx - syy)
+        root = math.sqrt(half_diff * half_diff + sxy * sxy)
+        mean = 0.5 * (sxx + syy)
+        lmax = mean + root
+        lmin = mean - root
+        rng = max(math.hypot(x, y), 1e-12)
+        tx, ty = x / -rng, y / -rng  # the unit vector towards the sensor
+        if cnt < 3:
+            nx, ny, q = tx, ty, 0.0
+        else:
+            phi = 0.5 * math.atan2(sxy, half_diff)
+            nx, ny = -math.sin(phi), math.cos(phi)
+            q = 1.0 - lmin / max(lmax, 1e-300) if lmax > 0.0 else 0.0  # all neighbours at one spot: no line
+            q = min(max(q, 0.0), 1.0)  # rounding: λmin may come out slightly negative
+        if nx * tx + ny * ty < 0.0:  # face the sensor
+            nx, ny = -nx, -ny
+        normals[i, 0], normals[i, 1] = nx, ny
+        quality[i] = q
 
 
 def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0.0, max_gap_rad: float = 0.35) -> np.ndarray:
@@ -207,35 +228,69 @@ def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0
     doorway, a window, sparse returns, a beam past the sensor's range) are
     taken as free up to the nearer of the two returns bounding the gap, at
     most ``gap_free_m`` (when it is > 0); wider gaps (outside the field of
-    view) stay unknown.
+    view) stay unknown. Compiled (numba, a few µs for a laser scan).
     """
-    pts = np.asarray(points_m, dtype=np.float64)
+    pts = np.ascontiguousarray(np.asarray(points_m, dtype=np.float64))
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise InputError(f"points_m must be N×2, got shape {pts.shape}")
+    if np.isnan(pts).any():
+        raise InputError("points_m contains NaN values")
+    n_bins = int(n_bins)
+    if n_bins < 1:
+        raise InputError(f"n_bins must be >= 1, got {n_bins!r}")
+    return _profile(pts, n_bins, float(gap_free_m), int(max_gap_rad / (2 * np.pi) * n_bins))
+
+
+@njit(cache=True, inline="always")
+def _bin(x: float, y: float, n_bins: int) -> int:
+    """Bin of a bearing: ``floor((atan2(y, x) + π) / 2π · n) mod n`` (bearing +π: the bin of −π)."""
+    b = int(math.floor((math.atan2(y, x) + math.pi) / (2 * math.pi) * n_bins))
+    return b - n_bins if b >= n_bins else b
+
+
+@njit(cache=True)
+def _profile(pts: np.ndarray, n_bins: int, gap_free_m: float, max_gap_bins: int) -> np.ndarray:
+    """:func:`polar_profile`, compiled (``max_gap_bins``: the widest gap filled, in bins)."""
     prof = np.full(n_bins, np.inf)
-    if len(pts) == 0:
-        return np.full(n_bins, np.nan)
-    np.minimum.at(prof, _bearing_bins(pts, n_bins), np.hypot(pts[:, 0], pts[:, 1]))
+    if pts.shape[0] == 0:
+        prof[:] = np.nan
+        return prof
+    for i in range(pts.shape[0]):
+        b = _bin(pts[i, 0], pts[i, 1], n_bins)
+        r = math.hypot(pts[i, 0], pts[i, 1])
+        if r < prof[b]:
+            prof[b] = r
     if gap_free_m > 0.0:
-        occ = np.flatnonzero(prof < np.inf)  # the bins with a return, increasing
-        if 0 < len(occ) < n_bins:
-            # for every bin, the nearest bin with a return before and after it (circularly)
-            pos = np.searchsorted(occ, np.arange(n_bins))
-            prev = occ.take(pos - 1)  # pos 0: the last one (wraps)
-            nxt = occ.take(pos, mode="wrap")  # pos = len(occ): the first one
-            gap = nxt - prev - 1
-            gap[gap < 0] += n_bins
-            fill = (gap <= int(max_gap_rad / (2 * np.pi) * n_bins)) & (prof == np.inf)
-            bound = np.minimum(prof.take(prev), prof.take(nxt))
-            np.minimum(bound, gap_free_m, out=bound)
-            np.copyto(prof, bound, where=fill)
-    prof[prof == np.inf] = np.nan
+        first = last = -1
+        n_occ = 0
+        for b in range(n_bins):
+            if prof[b] < np.inf:
+                n_occ += 1
+                last = b
+                if first < 0:
+                    first = b
+        if 0 < n_occ < n_bins:
+            # the nearest bin with a return after each bin (circularly), by a backward sweep
+            nxt = np.empty(n_bins, np.int64)
+            after = first
+            for b in range(n_bins - 1, -1, -1):
+                nxt[b] = after
+                if prof[b] < np.inf:
+                    after = b
+            prev = last  # the nearest bin with a return before (circularly)
+            for b in range(n_bins):
+                if prof[b] < np.inf:
+                    prev = b
+                    continue
+                gap = nxt[b] - prev - 1
+                if gap < 0:
+                    gap += n_bins
+                if gap <= max_gap_bins:
+                    prof[b] = min(prof[prev], prof[nxt[b]], gap_free_m)
+    for b in range(n_bins):
+        if prof[b] == np.inf:
+            prof[b] = np.nan
     return prof
-
-
-def _bearing_bins(pts: np.ndarray, n_bins: int) -> np.ndarray:
-    """Bin of each point's bearing: ``floor((atan2(y, x) + π) / 2π · n) mod n``."""
-    b = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * n_bins).astype(np.int64)
-    b[b >= n_bins] -= n_bins  # bearing +π: the bin of −π
-    return b
 
 
 def free_space_violation(
@@ -248,11 +303,171 @@ def free_space_violation(
     Aligning a scan to a *wrong* but similar place (another office of the
     same corridor) puts many of its points in the other scan's free space.
     """
-    pts = np.asarray(points_m, dtype=np.float64)
+    pts = np.ascontiguousarray(np.asarray(points_m, dtype=np.float64))
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise InputError(f"points_m must be N×2, got shape {pts.shape}")
     if len(pts) == 0:
         return 0.0
-    prof = np.asarray(profile_m, dtype=np.float64)
-    free = prof.take(_bearing_bins(pts, len(prof)))
-    # a bin without a return (NaN) never compares true
-    bad = np.hypot(pts[:, 0], pts[:, 1]) < free - np.maximum(margin_m, margin_ratio * free)
-    return float(np.count_nonzero(bad)) / len(pts)
+    if np.isnan(pts).any():
+        raise InputError("points_m contains NaN values")
+    prof = np.ascontiguousarray(np.asarray(profile_m, dtype=np.float64))
+    if prof.ndim != 1 or len(prof) == 0:
+        raise InputError(f"profile_m must be a non-empty 1-D array, got shape {prof.shape}")
+    bad = _violations(prof, pts, False, 1.0, 0.0, 0.0, 0.0, float(margin_m), float(margin_ratio))
+    return float(bad) / len(pts)
+
+
+@njit(cache=True)
+def _violations(
+    prof: np.ndarray,
+    pts: np.ndarray,
+    moved: bool,
+    c: float,
+    s: float,
+    tx: float,
+    ty: float,
+    margin_m: float,
+    margin_ratio: float,
+) -> int:
+    """How many of ``pts`` (moved by ``(c, s, tx, ty)`` into the profile's frame first when ``moved``) violate
+    the free space of ``prof`` (:func:`free_space_violation`)."""
+    n_bins = len(prof)
+    bad = 0
+    for i in range(pts.shape[0]):
+        x, y = pts[i, 0], pts[i, 1]
+        if moved:
+            x, y = x * c - y * s + tx, x * s + y * c + ty
+        free = prof[_bin(x, y, n_bins)]
+        if math.hypot(x, y) < free - max(margin_m, margin_ratio * free):  # NaN (no return) never compares true
+            bad += 1
+    return bad
+
+
+def alignment_violation(profile_a: np.ndarray, points_a: np.ndarray, profile_b: np.ndarray, points_b: np.ndarray, T_a_b) -> float:
+    """Free-space violation of an alignment, the larger of the two directions (one compiled call).
+
+    ``points_b`` (scan b, its sensor frame) moved by ``T_a_b`` into a's frame against ``profile_a``, and
+    ``points_a`` moved by ``T_a_b⁻¹`` into b's frame against ``profile_b`` (:func:`free_space_violation`,
+    default margins). The caller passes validated N×2 float64 C-contiguous arrays (N ≥ 1) and profiles from
+    :func:`polar_profile`; ``T_a_b`` is a :class:`~factorloc.geometry.Pose2`.
+    """
+    T_b_a = T_a_b.inverse()
+    return _alignment_violation(
+        profile_a,
+        points_b,
+        math.cos(T_a_b.theta),
+        math.sin(T_a_b.theta),
+        T_a_b.x,
+        T_a_b.y,
+        profile_b,
+        points_a,
+        math.cos(T_b_a.theta),
+        math.sin(T_b_a.theta),
+        T_b_a.x,
+        T_b_a.y,
+    )
+
+
+@njit(cache=True)
+def _alignment_violation(
+    prof_a: np.ndarray,
+    pts_b: np.ndarray,
+    c_ab: float,
+    s_ab: float,
+    x_ab: float,
+    y_ab: float,
+    prof_b: np.ndarray,
+    pts_a: np.ndarray,
+    c_ba: float,
+    s_ba: float,
+    x_ba: float,
+    y_ba: float,
+) -> float:
+    v_b = _violations(prof_a, pts_b, True, c_ab, s_ab, x_ab, y_ab, 0.15, 0.05) / pts_b.shape[0]
+    v_a = _violations(prof_b, pts_a, True, c_ba, s_ba, x_ba, y_ba, 0.15, 0.05) / pts_a.shape[0]
+    return max(v_b, v_a)
+
+
+def overlap_fitness(
+    profile_a: np.ndarray,
+    points_a: np.ndarray,
+    profile_b: np.ndarray,
+    points_b: np.ndarray,
+    T_a_b,
+    distance_m: float,
+) -> tuple[float, int]:
+    """Fitness over the points each scan's sensor could have seen, the smaller of the two directions, and that count.
+
+    A point of one scan, put in the other sensor's frame (scan b by ``T_a_b``, scan a by its inverse), is
+    *visible* to that sensor when its bearing lies in a bin with a return (a finite free range R of the
+    other's ``profile``, :func:`polar_profile`) and it is not farther than ``R + max(0.15 m, 0.05 R)`` (not
+    hidden behind what the sensor saw); it fits when a point of the other scan lies closer than
+    ``distance_m`` (exact nearest neighbours on a grid, :func:`~factorloc.registration.nn.grid_nearest`).
+    Returns ``(min(f_a, f_b), min(n_a, n_b))``, a direction without a visible point counting as (0, 0).
+    Arrays as for :func:`alignment_violation`.
+    """
+    T_b_a = T_a_b.inverse()
+    f1, n1, f2, n2 = _overlap_fitness(
+        profile_a,
+        points_a,
+        points_b,
+        math.cos(T_a_b.theta),
+        math.sin(T_a_b.theta),
+        T_a_b.x,
+        T_a_b.y,
+        profile_b,
+        math.cos(T_b_a.theta),
+        math.sin(T_b_a.theta),
+        T_b_a.x,
+        T_b_a.y,
+        float(distance_m),
+    )
+    return min(f1, f2), min(n1, n2)
+
+
+@njit(cache=True)
+def _visible_fit(
+    prof: np.ndarray, pts: np.ndarray, c: float, s: float, tx: float, ty: float, other: np.ndarray, d: float
+) -> tuple[float, int]:
+    """One direction of :func:`overlap_fitness`: ``pts`` moved by ``(c, s, tx, ty)`` into the frame of ``prof``
+    and of the points ``other``."""
+    order, start, geo = build_grid(other[:, 0].copy(), other[:, 1].copy(), GRID_CELL_M, GRID_MAX_CELLS)
+    grid_pts = other[order]
+    n_bins = len(prof)
+    n_vis = 0
+    n_fit = 0
+    d2 = d * d * (1.0 + 1e-9)
+    for i in range(pts.shape[0]):
+        x, y = pts[i, 0], pts[i, 1]
+        x, y = x * c - y * s + tx, x * s + y * c + ty
+        free = prof[_bin(x, y, n_bins)]
+        if not (math.isfinite(free) and math.hypot(x, y) <= free + max(0.15, 0.05 * free)):
+            continue
+        n_vis += 1
+        best, k = grid_nearest(x, y, grid_pts, start, geo, d2)
+        if k >= 0 and math.sqrt(best) < d:
+            n_fit += 1
+    if n_vis == 0:
+        return 0.0, 0
+    return n_fit / n_vis, n_vis
+
+
+@njit(cache=True)
+def _overlap_fitness(
+    prof_a: np.ndarray,
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    c_ab: float,
+    s_ab: float,
+    x_ab: float,
+    y_ab: float,
+    prof_b: np.ndarray,
+    c_ba: float,
+    s_ba: float,
+    x_ba: float,
+    y_ba: float,
+    d: float,
+) -> tuple[float, int, float, int]:
+    f1, n1 = _visible_fit(prof_a, pts_b, c_ab, s_ab, x_ab, y_ab, pts_a, d)
+    f2, n2 = _visible_fit(prof_b, pts_a, c_ba, s_ba, x_ba, y_ba, pts_b, d)
+    return f1, n1, f2, n2
