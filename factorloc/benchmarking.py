@@ -23,7 +23,13 @@ a speed: the test suite only checks that the machinery runs.
 False positive
     A step's estimate that the step called *reliable* while its error exceeds
     3 marginal σ in a component it measures (the confidently-wrong test of
-    :func:`factorloc.evaluation.metrics.confidently_wrong` applied per step).
+    :func:`factorloc.evaluation.metrics.confidently_wrong` applied per step):
+    the headline. The second definition, a reliable estimate off by more than
+    a fixed tolerance (:func:`beyond_tolerance`), does not depend on the σ the
+    step states (a blind step's σ is wider). Counts of rare events get exact
+    intervals: :func:`clopper_pearson` for a rate, :func:`rate_ratio_interval`
+    for the blind / seeded ratio, :func:`queries_to_show_ratio` for the
+    sample a claimed ratio needs.
 """
 
 from __future__ import annotations
@@ -38,9 +44,11 @@ from typing import Any
 
 import cv2
 import numpy as np
+from scipy.stats import beta as beta_dist
 
 from factorloc.config import Config
 from factorloc.errors import InputError
+from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M
 from factorloc.evaluation import metrics
 from factorloc.evaluation.runner import Case, EvaluationSet, HierarchyRun, evaluate, evaluation_set, run_hierarchy
 from factorloc.fusion.graph import GraphFusion
@@ -58,7 +66,12 @@ __all__ = [
     "bench_hierarchy",
     "bench_icp_vs_open3d",
     "bench_localize",
+    "beyond_tolerance",
+    "clopper_pearson",
+    "compare_counts",
     "fit_exponent",
+    "queries_to_show_ratio",
+    "rate_ratio_interval",
     "run_bench",
     "scaled_set",
 ]
@@ -84,6 +97,14 @@ class BenchSettings:
         How many queries (the first ones) each cost-curve point localizes.
     icp_success_m, icp_success_rad
         An ICP alignment is a success when its error is below both.
+    confidence
+        Confidence of the exact intervals of the false-positive rates and of their ratio.
+    fp_target_ratio
+        The blind / seeded false-positive ratio to show (the issue's claim: 5).
+    fp_tolerance_m, fp_tolerance_rad
+        The fixed tolerance of the second false-positive definition (:func:`beyond_tolerance`):
+        10 cm, 5° — gross errors (the wrong correlation peak, a look-alike's vote mode, the wrong
+        ICP basin), above the honest noise of a reliable visual heading (σ up to 5°).
     """
 
     repeats: int = 3
@@ -92,6 +113,10 @@ class BenchSettings:
     cost_queries: int = 20
     icp_success_m: float = 0.05
     icp_success_rad: float = math.radians(1.0)
+    confidence: float = 0.95
+    fp_target_ratio: float = 5.0
+    fp_tolerance_m: float = 0.10
+    fp_tolerance_rad: float = math.radians(5.0)
 
     def __post_init__(self) -> None:
         if self.repeats < 1 or self.fusion_repeats < 1 or self.cost_queries < 1:
@@ -103,6 +128,10 @@ class BenchSettings:
         if len(factors) < 2 or any(not (f > 0 and math.isfinite(f)) for f in factors):
             raise InputError(f"cost_factors needs at least 2 positive scale factors, got {self.cost_factors!r}")
         object.__setattr__(self, "cost_factors", factors)
+        _check_confidence(self.confidence)
+        for name in ("fp_target_ratio", "fp_tolerance_m", "fp_tolerance_rad"):
+            if not getattr(self, name) > 0.0:
+                raise InputError(f"{name} must be > 0, got {getattr(self, name)!r}")
 
 
 def _ms_stats(seconds: np.ndarray) -> dict[str, float]:
@@ -152,8 +181,190 @@ def bench_localize(runs: Sequence[HierarchyRun]) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------
+# Exact binomial statistics (for counts of rare events)
+# --------------------------------------------------------------------------
+def _check_count(count: int, trials: int) -> None:
+    if not (0 <= count <= trials):
+        raise InputError(f"need 0 <= count <= trials, got count={count!r}, trials={trials!r}")
+
+
+def _check_confidence(confidence: float) -> None:
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"confidence must be in (0, 1), got {confidence!r}")
+
+
+def clopper_pearson(count: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """Exact (Clopper–Pearson) two-sided interval of the binomial rate ``count / trials``.
+
+    ``[B(α/2; k, n − k + 1), B(1 − α/2; k + 1, n − k)]`` with ``B(q; a, b)`` the
+    beta distribution's quantile and ``α = 1 − confidence`` (Clopper & Pearson,
+    Biometrika 26, 1934); the lower end is 0 when ``k = 0``, the upper 1 when
+    ``k = n``. ``(nan, nan)`` with no trial.
+    """
+    _check_count(count, trials)
+    _check_confidence(confidence)
+    if trials == 0:
+        return math.nan, math.nan
+    a = 1.0 - confidence
+    lo = 0.0 if count == 0 else float(beta_dist.ppf(a / 2.0, count, trials - count + 1))
+    hi = 1.0 if count == trials else float(beta_dist.ppf(1.0 - a / 2.0, count + 1, trials - count))
+    return lo, hi
+
+
+def _ratio_of_share(share: float, trials_num: float, trials_den: float) -> float:
+    """ρ from the conditional share π = ρ·n₁ / (ρ·n₁ + n₂): ρ = π·n₂ / ((1 − π)·n₁)."""
+    if share >= 1.0:
+        return math.inf
+    return share * trials_den / ((1.0 - share) * trials_num)
+
+
+def rate_ratio_interval(
+    count_num: float,
+    trials_num: float,
+    count_den: float,
+    trials_den: float,
+    confidence: float = 0.95,
+    *,
+    one_sided: bool = False,
+) -> tuple[float, float]:
+    """Exact conditional interval of the ratio ρ of two rare-event rates, ``(k₁/n₁) / (k₂/n₂)``.
+
+    Given the total ``m = k₁ + k₂``, ``k₁`` is binomial(m, π) with
+    ``π = ρ·n₁ / (ρ·n₁ + n₂)`` (Poisson approximation of rare events: the
+    classical exact test of two rates, e.g. Breslow & Day 1987, §2.2); the
+    Clopper–Pearson interval of π maps to ρ. With ``one_sided`` the result is
+    ``(lower bound at confidence, inf)``. ``(nan, nan)`` when ``m = 0``: no
+    event on either side, nothing to compare. Counts may be non-integer
+    (expected counts, :func:`queries_to_show_ratio`).
+    """
+    _check_confidence(confidence)
+    if min(count_num, count_den) < 0 or min(trials_num, trials_den) <= 0:
+        raise InputError(f"counts must be >= 0 and trials > 0, got {count_num!r}/{trials_num!r} and {count_den!r}/{trials_den!r}")
+    if count_num + count_den == 0:
+        return math.nan, math.nan
+    a = 1.0 - confidence
+    q_lo = a if one_sided else a / 2.0
+    lo = 0.0 if count_num == 0 else float(beta_dist.ppf(q_lo, count_num, count_den + 1))
+    if one_sided:
+        return _ratio_of_share(lo, trials_num, trials_den), math.inf
+    hi = 1.0 if count_den == 0 else float(beta_dist.ppf(1.0 - a / 2.0, count_num + 1, count_den))
+    return _ratio_of_share(lo, trials_num, trials_den), _ratio_of_share(hi, trials_num, trials_den)
+
+
+def queries_to_show_ratio(
+    rate_num: float, rate_den: float, target: float = 5.0, confidence: float = 0.95, *, max_queries: int = 10**8
+) -> int | None:
+    """Fewest queries (per mode) whose *expected* counts would show ``rate_num / rate_den ≥ target``.
+
+    The one-sided lower bound of :func:`rate_ratio_interval` with the expected
+    counts ``n·rate`` must reach ``target``: about an even chance of showing it
+    with that many queries if the rates are the true ones (more for a
+    comfortable power). ``None`` when ``rate_num`` is 0 or the ratio of the
+    rates does not exceed ``target`` (no number of queries would show it), or
+    beyond ``max_queries``. With ``rate_den = 0`` this is the closed form
+    ``n·rate_num ≥ ln α / ln(target / (1 + target))`` (17 events for 5× at 95 %).
+    """
+    if not (rate_num >= 0.0 and rate_den >= 0.0 and target > 0.0):
+        raise InputError(f"rates must be >= 0 and target > 0, got {rate_num!r}, {rate_den!r}, {target!r}")
+    if rate_num == 0.0 or rate_num <= target * rate_den:
+        return None
+
+    def shown(n: int) -> bool:
+        return rate_ratio_interval(n * rate_num, n, n * rate_den, n, confidence, one_sided=True)[0] >= target
+
+    hi = 1
+    while not shown(hi):
+        hi *= 2
+        if hi > max_queries:
+            return None
+    lo = hi // 2
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        lo, hi = (lo, mid) if shown(mid) else (mid, hi)
+    return hi
+
+
+# --------------------------------------------------------------------------
 # Seeded vs blind
 # --------------------------------------------------------------------------
+def beyond_tolerance(errors: np.ndarray, covariance: np.ndarray, tolerance_m: float, tolerance_rad: float) -> bool:
+    """Whether an estimate's error exceeds a fixed tolerance in what it determines.
+
+    Parameters
+    ----------
+    errors
+        (3,) world-frame error ``estimate − truth`` (m, m, rad), ``nan`` where unmeasured.
+    covariance
+        (3, 3) world-frame covariance, ``inf`` variance where unmeasured.
+    tolerance_m, tolerance_rad
+        The position error (norm over the determined directions) and heading error allowed.
+
+    Notes
+    -----
+    A position is judged along the eigen-directions of its 2×2 covariance whose
+    σ is below half :data:`~factorloc.estimators.icp.UNCONSTRAINED_SIGMA_M`
+    (the pipeline's "undetermined" test, :func:`factorloc.gating.unconstrained_position`):
+    an ICP estimate that only fixes the position across a wall claims nothing
+    along it.
+    """
+    e = np.asarray(errors, dtype=np.float64).reshape(3)
+    cov = np.asarray(covariance, dtype=np.float64).reshape(3, 3)
+    if math.isfinite(cov[2, 2]) and math.isfinite(e[2]) and abs(e[2]) > tolerance_rad:
+        return True
+    p = cov[:2, :2]
+    if np.all(np.isfinite(p)) and np.all(np.isfinite(e[:2])):
+        w, v = np.linalg.eigh(p)
+        keep = w < (0.5 * UNCONSTRAINED_SIGMA_M) ** 2
+        if keep.any() and float(np.linalg.norm(v[:, keep].T @ e[:2])) > tolerance_m:
+            return True
+    return False
+
+
+@dataclass(frozen=True)
+class _Outcomes:
+    """Per query with truth (rows) of one hierarchy run: what each step and the fused result did."""
+
+    step_names: tuple[str, ...]
+    reliable: np.ndarray  # Q×S bool
+    sigma3: np.ndarray  # Q×S bool: reliable and off by > 3σ in a measured component
+    tolerance: np.ndarray  # Q×S bool: reliable and beyond the fixed tolerance
+    fused_sigma3: np.ndarray  # Q bool: fully determined and off by > 3σ (the confidently-wrong test)
+    fused_tolerance: np.ndarray  # Q bool: fully determined and beyond the fixed tolerance
+
+
+def _outcomes(run: HierarchyRun, tolerance_m: float, tolerance_rad: float) -> _Outcomes:
+    names = tuple(run.step_names)
+    col = {n: i for i, n in enumerate(names)}
+    rel, s3, tol, f3, ft = [], [], [], [], []
+    for q in run.runs:
+        if q.case.truth is None:
+            continue
+        truth = q.case.truth.as_array()[None]
+        r_row, s_row, t_row = np.zeros(len(names), bool), np.zeros(len(names), bool), np.zeros(len(names), bool)
+        for r in q.reports:
+            est = r.estimate
+            if est is None or not est.reliable or r.name not in col:
+                continue
+            err = metrics.pose_errors(metrics.values_of_estimate(est)[None], truth)
+            cov = metrics.covariance_of_estimate(est)
+            j = col[r.name]
+            r_row[j] = True
+            s_row[j] = bool(metrics.confidently_wrong(err, cov[None], reliable=np.array([True]))[0])
+            t_row[j] = beyond_tolerance(err[0], cov, tolerance_m, tolerance_rad)
+        loc = q.localization
+        err = metrics.pose_errors(loc.pose.as_array()[None], truth)
+        cov = np.asarray(loc.covariance, dtype=np.float64)
+        full = bool(np.all(np.isfinite(np.diag(cov))))
+        f3.append(bool(metrics.confidently_wrong(err, cov[None])[0]))
+        ft.append(full and beyond_tolerance(err[0], cov, tolerance_m, tolerance_rad))
+        rel.append(r_row)
+        s3.append(s_row)
+        tol.append(t_row)
+    shape = (len(rel), len(names))
+    arr = (lambda rows: np.array(rows, dtype=bool).reshape(shape)) if rel else (lambda rows: np.zeros(shape, bool))
+    return _Outcomes(names, arr(rel), arr(s3), arr(tol), np.array(f3, dtype=bool), np.array(ft, dtype=bool))
+
+
 def _false_positives(run: HierarchyRun) -> dict[str, Any]:
     """Per step and in total: reliable estimates whose error exceeds 3σ (over queries with truth).
 
@@ -161,22 +372,10 @@ def _false_positives(run: HierarchyRun) -> dict[str, Any]:
     predecessors, so seeding cannot change it (its false positives are the
     same seeded and blind and would only dilute the ratio).
     """
-    per_step: dict[str, int] = {}
-    reliable: dict[str, int] = {}
-    n_truth = 0
-    for q in run.runs:
-        if q.case.truth is None:
-            continue
-        n_truth += 1
-        for r in q.reports:
-            est = r.estimate
-            if est is None or not est.reliable:
-                continue
-            reliable[r.name] = reliable.get(r.name, 0) + 1
-            err = metrics.pose_errors(metrics.values_of_estimate(est)[None], q.case.truth.as_array()[None])
-            cov = metrics.covariance_of_estimate(est)[None]
-            if metrics.confidently_wrong(err, cov, reliable=np.array([True]))[0]:
-                per_step[r.name] = per_step.get(r.name, 0) + 1
+    o = _outcomes(run, math.inf, math.inf)
+    n_truth = int(o.reliable.shape[0])
+    per_step = dict(zip(o.step_names, o.sigma3.sum(axis=0).tolist(), strict=True))
+    reliable = dict(zip(o.step_names, o.reliable.sum(axis=0).tolist(), strict=True))
     total = sum(v for k, v in per_step.items() if k != run.step_names[0])
     return {
         "queries_with_truth": n_truth,
@@ -184,16 +383,70 @@ def _false_positives(run: HierarchyRun) -> dict[str, Any]:
         "false_positive_rate": total / n_truth if n_truth else math.nan,
         "steps": {
             name: {
-                "false_positive_count": per_step.get(name, 0),
-                "reliable_count": reliable.get(name, 0),
-                "false_positive_rate": per_step.get(name, 0) / n_truth if n_truth else math.nan,
+                "false_positive_count": per_step[name],
+                "reliable_count": reliable[name],
+                "false_positive_rate": per_step[name] / n_truth if n_truth else math.nan,
             }
-            for name in run.step_names
+            for name in o.step_names
         },
     }
 
 
-def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[HierarchyRun]) -> dict[str, Any]:
+def _mode_figures(count: int, trials: int, confidence: float, reliable: int | None = None) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "count": int(count),
+        "queries": int(trials),
+        "rate": count / trials if trials else math.nan,
+        "rate_ci": list(clopper_pearson(int(count), int(trials), confidence)),
+    }
+    if reliable is not None:
+        out["reliable"] = int(reliable)
+        out["per_reliable"] = count / reliable if reliable else math.nan
+        out["per_reliable_ci"] = list(clopper_pearson(int(count), int(reliable), confidence)) if reliable else [math.nan] * 2
+    return out
+
+
+def compare_counts(
+    seeded_count: int,
+    blind_count: int,
+    queries: int,
+    *,
+    confidence: float = 0.95,
+    target: float = 5.0,
+    seeded_reliable: int | None = None,
+    blind_reliable: int | None = None,
+) -> dict[str, Any]:
+    """Blind vs seeded false positives on the same ``queries``: rates, ratio and their exact intervals.
+
+    Returns ``seeded`` / ``blind`` (``count``, ``queries``, ``rate`` and its
+    Clopper–Pearson ``rate_ci``; with reliable counts also ``per_reliable`` and
+    its interval), ``ratio`` = blind / seeded rate (``inf`` when only blind has
+    some, ``nan`` when neither), ``ratio_ci`` (two-sided, :func:`rate_ratio_interval`),
+    ``ratio_lower_bound`` (one-sided at ``confidence``), ``shows_target``
+    (that bound ≥ ``target``) and ``queries_needed`` (:func:`queries_to_show_ratio`
+    at the observed rates, a seeded 0 taken as 0: the best case; ``None`` when
+    the observed rates could never show it).
+    """
+    if queries < 1:
+        raise InputError(f"queries must be >= 1, got {queries!r}")
+    out: dict[str, Any] = {
+        "seeded": _mode_figures(seeded_count, queries, confidence, seeded_reliable),
+        "blind": _mode_figures(blind_count, queries, confidence, blind_reliable),
+    }
+    if seeded_count == blind_count == 0:
+        out["ratio"] = math.nan
+    else:
+        out["ratio"] = blind_count / seeded_count if seeded_count else math.inf
+    out["ratio_ci"] = list(rate_ratio_interval(blind_count, queries, seeded_count, queries, confidence))
+    out["ratio_lower_bound"] = rate_ratio_interval(blind_count, queries, seeded_count, queries, confidence, one_sided=True)[0]
+    out["shows_target"] = bool(out["ratio_lower_bound"] >= target)  # nan >= target is False
+    out["queries_needed"] = queries_to_show_ratio(blind_count / queries, seeded_count / queries, target, confidence)
+    return out
+
+
+def bench_hierarchy(
+    seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[HierarchyRun], *, settings: BenchSettings = BenchSettings()
+) -> dict[str, Any]:
     """Seeded vs blind: time per query, false positives (per step and total), confidently-wrong fused results, ratios.
 
     ``time_ratio`` = blind / seeded median localize() time; ``false_positive_ratio``
@@ -210,13 +463,25 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
     steps get no hypotheses, so no later step can contradict an earlier one
     (the pipeline's seed audit needs a *seeded* ICP): that is part of what
     the ablation measures.
+
+    ``false_positives`` holds the statistically honest comparison
+    (:func:`compare_counts`: exact intervals at ``settings.confidence``, the
+    one-sided lower bound of the ratio, the queries needed to show
+    ``settings.fp_target_ratio``) for two definitions of a false positive —
+    ``sigma3`` (reliable, off by > 3σ in a measured component: the headline)
+    and ``tolerance`` (reliable, off by more than ``settings.fp_tolerance_m`` /
+    ``fp_tolerance_rad``, :func:`beyond_tolerance`) — per step, for "any step
+    after the first" per query (``steps_after_first``), and for the fused
+    result (``fused``: fully determined and wrong).
     """
     out: dict[str, Any] = {}
+    outcomes: dict[str, _Outcomes] = {}
     for label, runs in (("seeded", seeded_runs), ("blind", blind_runs)):
         if not runs:
             raise InputError(f"bench_hierarchy needs at least one {label} HierarchyRun")
         total, steps = _per_query_median(runs)
         fp = _false_positives(runs[0])
+        outcomes[label] = _outcomes(runs[0], settings.fp_tolerance_m, settings.fp_tolerance_rad)
         report = evaluate(runs[0]).to_json_dict()
         out[label] = {
             **_ms_stats(total),
@@ -241,6 +506,43 @@ def bench_hierarchy(seeded_runs: Sequence[HierarchyRun], blind_runs: Sequence[Hi
         # none on either side: no ratio to claim (nan); none seeded only: the blind count is a lower bound
         out[key] = b[count] / max(s[count], 1) if b[count] or s[count] else math.nan
         out[f"{key}_is_lower_bound"] = s[count] == 0 and b[count] > 0
+    out["false_positives"] = _false_positive_comparison(outcomes["seeded"], outcomes["blind"], settings)
+    return out
+
+
+def _false_positive_comparison(seeded: _Outcomes, blind: _Outcomes, settings: BenchSettings) -> dict[str, Any]:
+    if seeded.step_names != blind.step_names or seeded.reliable.shape != blind.reliable.shape:
+        raise InputError("the seeded and blind runs must cover the same steps and queries")
+    n = int(seeded.reliable.shape[0])
+    out: dict[str, Any] = {
+        "headline": "sigma3",
+        "confidence": settings.confidence,
+        "target_ratio": settings.fp_target_ratio,
+        "tolerance_m": settings.fp_tolerance_m,
+        "tolerance_deg": math.degrees(settings.fp_tolerance_rad),
+        "queries": n,
+    }
+    if n == 0:
+        return out
+    kw = {"confidence": settings.confidence, "target": settings.fp_target_ratio}
+    later = slice(1, None)  # the first step has no predecessor: seeding cannot change it
+    for label, s_flags, b_flags, s_fused, b_fused in (
+        ("sigma3", seeded.sigma3, blind.sigma3, seeded.fused_sigma3, blind.fused_sigma3),
+        ("tolerance", seeded.tolerance, blind.tolerance, seeded.fused_tolerance, blind.fused_tolerance),
+    ):
+        out.setdefault("steps_after_first", {})[label] = compare_counts(
+            int(s_flags[:, later].any(axis=1).sum()), int(b_flags[:, later].any(axis=1).sum()), n, **kw
+        )
+        out.setdefault("fused", {})[label] = compare_counts(int(s_fused.sum()), int(b_fused.sum()), n, **kw)
+        for j, name in enumerate(seeded.step_names):
+            out.setdefault("steps", {}).setdefault(name, {})[label] = compare_counts(
+                int(s_flags[:, j].sum()),
+                int(b_flags[:, j].sum()),
+                n,
+                seeded_reliable=int(seeded.reliable[:, j].sum()),
+                blind_reliable=int(blind.reliable[:, j].sum()),
+                **kw,
+            )
     return out
 
 
@@ -553,7 +855,7 @@ def run_bench(
             "cost_queries": settings.cost_queries,
         },
         "localize": bench_localize(seeded),
-        "hierarchy": bench_hierarchy(seeded, blind),
+        "hierarchy": bench_hierarchy(seeded, blind, settings=settings),
     }
     out["icp_vs_open3d"] = bench_icp_vs_open3d(data, cfg, settings=settings)
     if progress is not None:

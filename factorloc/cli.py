@@ -324,6 +324,91 @@ def _ratio_text(ratio: float | None, prefix: str = "") -> str:
     return f"{prefix}{ratio:.1f}×" if ratio is not None and math.isfinite(ratio) else "—"
 
 
+def _count_text(m: dict[str, Any]) -> str:
+    """``"2 [0.1–2.4 %]"``: a false-positive count and the exact interval of its rate per query."""
+    lo, hi = m["rate_ci"]
+    if lo is None or hi is None:
+        return str(m["count"])
+    return f"{m['count']} [{100 * lo:.1f}–{100 * hi:.1f} %]"
+
+
+def _fp_ratio_text(c: dict[str, Any]) -> str:
+    """The blind / seeded ratio of a :func:`factorloc.benchmarking.compare_counts` block and its one-sided lower bound."""
+    s, b = c["seeded"]["count"], c["blind"]["count"]
+    if s == b == 0:
+        return "— (none)"
+    point = "∞" if s == 0 else f"{b / s:.1f}×"
+    lb = c.get("ratio_lower_bound")
+    return point if lb is None else f"{point} (≥ {lb:.2f}×)"
+
+
+def hierarchy_table(h: dict[str, Any]) -> Table:
+    """Seeded vs blind: time, false positives with exact intervals and the ratio's lower bound, fused outcome."""
+    s, b = h["seeded"], h["blind"]
+    fp = h.get("false_positives") or {}
+    conf = 100 * fp.get("confidence", 0.95)
+    t = _table(
+        "Hierarchy ablation: every step seeded vs every step blind",
+        ("", "seeded", "blind", f"blind/seeded (≥ {conf:.0f} %)"),
+    )
+    t.add_row(
+        "median ms / query", _num(s["median_ms"], ".1f"), _num(b["median_ms"], ".1f"), _num(h["time_ratio"], ".1f", 1.0, "×")
+    )
+    if not fp.get("queries"):
+        # no false-positive comparison (older JSON, or no query with truth): the plain counts
+        lb = "≥ " if h["false_positive_ratio_is_lower_bound"] else ""
+        t.add_row(
+            "false positives of seeded steps",
+            str(s["false_positive_count"]),
+            str(b["false_positive_count"]),
+            _ratio_text(h["false_positive_ratio"], lb),
+        )
+        cw_lb = "≥ " if h.get("confidently_wrong_ratio_is_lower_bound") else ""
+        t.add_row(
+            "confidently-wrong fused",
+            f"{s['confidently_wrong_count']} ({_pct(s['confidently_wrong_rate'])})",
+            f"{b['confidently_wrong_count']} ({_pct(b['confidently_wrong_rate'])})",
+            _ratio_text(h.get("confidently_wrong_ratio"), cw_lb),
+        )
+        t.add_row("fully localized", _pct(s["determined_rate"]), _pct(b["determined_rate"]), "")
+        return t
+    n = fp["queries"]
+    tol = f"> {100 * fp['tolerance_m']:.0f} cm, {fp['tolerance_deg']:.0f}°"
+    rows = (
+        (f"[bold]steps 2–{len(fp['steps'])} false + (> 3σ)[/]", fp["steps_after_first"]["sigma3"]),
+        (f"steps 2–{len(fp['steps'])} false + ({tol})", fp["steps_after_first"]["tolerance"]),
+    )
+    for label, c in rows:
+        t.add_row(label, _count_text(c["seeded"]), _count_text(c["blind"]), _fp_ratio_text(c))
+    for name, per in fp["steps"].items():
+        c = per["sigma3"]
+        t.add_row(
+            f"  {name}: > 3σ / reliable",
+            f"{c['seeded']['count']} / {c['seeded']['reliable']}",
+            f"{c['blind']['count']} / {c['blind']['reliable']}",
+            _fp_ratio_text(c),
+        )
+    t.add_row("[bold]fused confidently wrong (> 3σ)[/]", *_fused_cells(fp["fused"]["sigma3"]))
+    t.add_row(f"fused wrong ({tol})", *_fused_cells(fp["fused"]["tolerance"]))
+    t.add_row("fully localized", _pct(s["determined_rate"]), _pct(b["determined_rate"]), "")
+    target = fp["target_ratio"]
+    need = []
+    for label, c in (("steps", fp["steps_after_first"]["sigma3"]), ("fused", fp["fused"]["sigma3"])):
+        q = c.get("queries_needed")
+        if c.get("shows_target"):
+            need.append(f"{label} shown")
+        elif q is not None:
+            need.append(f"{label} ≈ {q}")
+        else:
+            need.append(f"{label}: no blind false +" if c["blind"]["count"] == 0 else f"{label}: ratio < {target:g}×")
+    t.add_row(f"queries to show {target:g}× (now {n})", "", "", "; ".join(need))
+    return t
+
+
+def _fused_cells(c: dict[str, Any]) -> tuple[str, str, str]:
+    return _count_text(c["seeded"]), _count_text(c["blind"]), _fp_ratio_text(c)
+
+
 def bench_tables(out: dict[str, Any]) -> list[Table]:
     """The bench figures as rich tables: localize per step, seeded vs blind, ICP vs Open3D, fusion, cost curve."""
     loc = out["localize"]
@@ -335,35 +420,7 @@ def bench_tables(out: dict[str, Any]) -> list[Table]:
     for name, s in loc["steps"].items():
         t1.add_row(f"  {name}", _num(s["median_ms"], ".2f"), _num(s["p95_ms"], ".2f"), _num(s["mean_ms"], ".2f"))
 
-    h = out["hierarchy"]
-    t2 = _table("Hierarchy ablation: every step seeded vs every step blind", ("", "seeded", "blind", "blind / seeded"))
-    s, b = h["seeded"], h["blind"]
-    t2.add_row(
-        "median ms / query", _num(s["median_ms"], ".1f"), _num(b["median_ms"], ".1f"), _num(h["time_ratio"], ".1f", 1.0, "×")
-    )
-    lb = "≥ " if h["false_positive_ratio_is_lower_bound"] else ""
-    t2.add_row(
-        "false positives of seeded steps",
-        str(s["false_positive_count"]),
-        str(b["false_positive_count"]),
-        _ratio_text(h["false_positive_ratio"], lb),
-    )
-    for name in s["steps_false_positive_count"]:
-        t2.add_row(
-            f"  {name}: false + / reliable",
-            f"{s['steps_false_positive_count'][name]} / {_pct(s['steps_reliable_rate'][name])}",
-            f"{b['steps_false_positive_count'][name]} / {_pct(b['steps_reliable_rate'][name])}",
-            "",
-        )
-    cw_ratio = h.get("confidently_wrong_ratio")
-    cw_lb = "≥ " if h.get("confidently_wrong_ratio_is_lower_bound") else ""
-    t2.add_row(
-        "confidently-wrong fused",
-        f"{s['confidently_wrong_count']} ({_pct(s['confidently_wrong_rate'])})",
-        f"{b['confidently_wrong_count']} ({_pct(b['confidently_wrong_rate'])})",
-        _ratio_text(cw_ratio, cw_lb),
-    )
-    t2.add_row("fully localized", _pct(s["determined_rate"]), _pct(b["determined_rate"]), "")
+    t2 = hierarchy_table(out["hierarchy"])
 
     icp = out["icp_vs_open3d"]
     t3 = _table(
