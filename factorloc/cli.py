@@ -374,9 +374,10 @@ def hierarchy_table(h: dict[str, Any]) -> Table:
         return t
     n = fp["queries"]
     tol = f"> {100 * fp['tolerance_m']:.0f} cm, {fp['tolerance_deg']:.0f}°"
+    first = next(iter(fp["steps"]), "the first")
     rows = (
-        (f"[bold]steps 2–{len(fp['steps'])} false + (> 3σ)[/]", fp["steps_after_first"]["sigma3"]),
-        (f"steps 2–{len(fp['steps'])} false + ({tol})", fp["steps_after_first"]["tolerance"]),
+        (f"[bold]steps after {first}: false + (> 3σ)[/]", fp["steps_after_first"]["sigma3"]),
+        (f"steps after {first}: false + ({tol})", fp["steps_after_first"]["tolerance"]),
     )
     for label, c in rows:
         t.add_row(label, _count_text(c["seeded"]), _count_text(c["blind"]), _fp_ratio_text(c))

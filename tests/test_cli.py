@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ from typer.testing import CliRunner
 
 import factorloc
 from factorloc.cli import app
+from factorloc.datasets import Scenario, save_scenario
 
 runner = CliRunner()
 
@@ -61,45 +63,18 @@ def test_fuse_rejects_missing_and_malformed_files(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------
 # evaluate / bench (added by the evaluation issue)
 # ----------------------------------------------------------------------------
-def _room_scenario(path: Path, n: int = 4) -> Path:
-    """A scan-only scenario in a 5×4 m room with a box: odometry off by (4, -3) cm and 1.1°, exact scans."""
-    import numpy as np
+@pytest.fixture
+def room_dir(tmp_path: Path, make_room_scenario: Callable[[int, int], Scenario]) -> Callable[[int], Path]:
+    """``room_dir(n)``: the shared test room (``tests/conftest.py``) with n queries, saved under ``tmp_path``."""
 
-    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference, save_scenario
+    def save(n: int = 4) -> Path:
+        return save_scenario(make_room_scenario(n, 5), tmp_path / "room")
 
-    rng = np.random.default_rng(5)
-    segments = [
-        ((0, 0), (5, 0)),
-        ((5, 0), (5, 4)),
-        ((5, 4), (0, 4)),
-        ((0, 4), (0, 0)),
-        ((2, 1.5), (3, 1.5)),
-        ((3, 1.5), (3, 2.2)),
-        ((3, 2.2), (2, 2.2)),
-        ((2, 2.2), (2, 1.5)),
-    ]
-
-    def room() -> np.ndarray:
-        pts = [
-            np.array(a, float) + rng.uniform(0, 1, (int(30 * math.dist(a, b)), 1)) * (np.array(b, float) - np.array(a, float))
-            for a, b in segments
-        ]
-        return np.vstack(pts)
-
-    T_ref = factorloc.Pose2(1.0, 1.0, 0.3)
-    ref = factorloc.Reference(scan=factorloc.Scan(T_ref.inverse().transform_points(room())), T_world_reference=T_ref)
-    queries = []
-    for i in range(n):
-        T = factorloc.Pose2(rng.uniform(0.6, 1.4), rng.uniform(0.6, 3.4), rng.uniform(-3, 3))
-        odo = factorloc.Odometry(factorloc.Pose2(T.x + 0.04, T.y - 0.03, T.theta + 0.02), 0.05, 0.05, 0.03)
-        q = factorloc.Query(scan=factorloc.Scan(T.inverse().transform_points(room())), odometry=odo, id=f"q{i}")
-        queries.append(ScenarioQuery(q, float(i), T, ("blur",) if i == 1 else ()))
-    save_scenario(Scenario("room", (ScenarioReference("ref0", ref),), tuple(queries)), path)
-    return path
+    return save
 
 
-def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Path) -> None:
-    scen = _room_scenario(tmp_path / "room")
+def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Path, room_dir: Callable[[int], Path]) -> None:
+    scen = room_dir(4)
     result = runner.invoke(app, ["evaluate", str(scen), "--json", str(tmp_path / "out.json"), "--plot", str(tmp_path / "figs")])
     assert result.exit_code == 0, result.output
     assert "room: fused pose" in result.output and "icp" in result.output
@@ -132,14 +107,17 @@ def test_evaluate_fails_cleanly_on_a_missing_scenario(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "error" in result.output
 
 
-def test_bench_on_a_tiny_scenario_writes_every_section(tmp_path: Path) -> None:
-    scen = _room_scenario(tmp_path / "room", n=2)
+def test_bench_on_a_tiny_scenario_writes_every_section(tmp_path: Path, room_dir: Callable[[int], Path]) -> None:
+    scen = room_dir(2)
     result = runner.invoke(app, ["bench", "--scenario", str(scen), "--repeats", "1", "--json", str(tmp_path / "bench.json")])
     assert result.exit_code == 0, result.output
     out = json.loads((tmp_path / "bench.json").read_text())
     assert {"localize", "hierarchy", "icp_vs_open3d", "fusion", "cost_curve"} <= set(out)
     assert out["icp_vs_open3d"]["pairs"] == 2 and out["hierarchy"]["time_ratio"] > 0
     assert "Hierarchy ablation" in result.output
+    fp = out["hierarchy"]["false_positives"]
+    assert fp["queries"] == 2 and fp["fused"]["sigma3"]["seeded"]["count"] == 0  # exact scans: ICP is right
+    assert "confidently" in result.output and "seeded" in result.output
 
 
 @pytest.mark.slow
@@ -216,8 +194,8 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
     assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text and "≥ 2.0×" in text
 
 
-def test_evaluate_uses_the_given_config(tmp_path: Path) -> None:
-    scen = _room_scenario(tmp_path / "room", n=2)
+def test_evaluate_uses_the_given_config(tmp_path: Path, room_dir: Callable[[int], Path]) -> None:
+    scen = room_dir(2)
     (tmp_path / "c.yaml").write_text("compass:\n  enabled: false\ncorrelation:\n  enabled: false\nfusion:\n  strategy: product\n")
     result = runner.invoke(app, ["evaluate", str(scen), "--config", str(tmp_path / "c.yaml"), "--json", str(tmp_path / "o.json")])
     assert result.exit_code == 0, result.output
@@ -246,3 +224,37 @@ def test_localize_unknown_query_or_scenario_fails_cleanly(repo_root: Path, tmp_p
     assert result.exit_code == 2 and "no query 'no-such-query'" in result.output
     result = runner.invoke(app, ["localize", str(tmp_path), "q0000"])
     assert result.exit_code == 2 and "error" in result.output.lower()
+
+
+def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sample_needed() -> None:
+    from rich.console import Console
+
+    from factorloc.benchmarking import _json_safe, compare_counts
+    from factorloc.cli import hierarchy_table
+
+    none, two = compare_counts(0, 0, 300), compare_counts(0, 2, 300)
+    mode = {"median_ms": 25.0, "determined_rate": 0.97}
+    h = {
+        "seeded": mode,
+        "blind": {**mode, "median_ms": 158.0},
+        "time_ratio": 6.3,
+        "false_positives": {
+            "confidence": 0.95,
+            "target_ratio": 5.0,
+            "tolerance_m": 0.1,
+            "tolerance_deg": 5.0,
+            "queries": 300,
+            "steps_after_first": {"sigma3": none, "tolerance": none},
+            "fused": {"sigma3": two, "tolerance": two},
+            "steps": {"odometry": {"sigma3": compare_counts(6, 6, 300, seeded_reliable=250, blind_reliable=250)}},
+        },
+    }
+    console = Console(width=160, record=True)
+    console.print(hierarchy_table(_json_safe(h)))
+    text = console.export_text()
+    # 2 of 300 blind, 0 seeded: the rates' exact intervals, an unbounded ratio whose one-sided bound is 0.29×,
+    # and the 2465 queries at which 0.67 % blind vs 0 seeded would show 5×
+    assert "0 [0.0–1.2 %]" in text and "2 [0.1–2.4 %]" in text and "∞ (≥ 0.29×)" in text
+    assert "steps after odometry: false + (> 3σ)" in text and "steps: no blind false +" in text
+    assert "fused ≈ 2465" in text and "6.3×" in text
+    assert "6 / 250" in text and "1.0× (≥ 0.33×)" in text
