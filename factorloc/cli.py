@@ -401,7 +401,7 @@ def hierarchy_table(h: dict[str, Any]) -> Table:
         elif q is not None:
             need.append(f"{label} ≈ {q}")
         else:
-            need.append(f"{label}: no blind false +" if c["blind"]["count"] == 0 else f"{label}: ratio < {target:g}×")
+            need.append(f"{label}: no blind false +" if c["blind"]["count"] == 0 else f"{label}: ratio ≤ {target:g}×")
     t.add_row(f"queries to show {target:g}× (now {n})", "", "", "; ".join(need))
     return t
 

@@ -62,6 +62,7 @@ from factorloc.registration.scan2d import (
     extract_scan,
     overlap_fitness,
     polar_profile,
+    profile_and_violation,
 )
 from factorloc.types import Estimate, Query, Reference
 
@@ -424,6 +425,7 @@ class IcpReference:
             raise InputError(f"T_world_reference must be a Pose2, got {type(T_world_reference).__name__}")
         self.config = config
         self.T_world_reference = T_world_reference
+        self.T_reference_world = T_world_reference.inverse()
         self.target: PreparedScan = prepare_target(points_m, config.icp)
 
     @property
@@ -495,6 +497,12 @@ def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, 
     """Free-space violation of an alignment, the larger of the two directions (one compiled call,
     :func:`~factorloc.registration.scan2d.alignment_violation`)."""
     return alignment_violation(prepared.profile, prepared.points_m, profile, points, T)
+
+
+def _profile_violation(prepared: IcpReference, points: np.ndarray, config: IcpConfig, T: Pose2) -> tuple[np.ndarray, float]:
+    """The query's free-space profile (``polar_profile(points, gap_free_m=config.gap_free_m)``) and :func:`_violation`
+    of the alignment ``T``, in one compiled call (:func:`~factorloc.registration.scan2d.profile_and_violation`)."""
+    return profile_and_violation(prepared.profile, prepared.points_m, points, T, config.gap_free_m)
 
 
 def _overlap_fitness(
@@ -743,7 +751,7 @@ def estimate(
         raise InputError(f"query scan has {len(pts)} point(s); need >= {max(3, config.min_inliers)}")
     kernel = _kernel(config.kernel, config.kernel_scale_m)
     T_wr = prepared.T_world_reference
-    T_rw = T_wr.inverse()
+    T_rw = prepared.T_reference_world
     pos = hypotheses.position()
     head = hypotheses.heading()
 
@@ -769,8 +777,7 @@ def estimate(
         strength = constraint_strength(result)
         verdict = _judge(result, cov, config, 0.0, strength)
         if verdict.reliable:
-            profile = polar_profile(pts, gap_free_m=config.gap_free_m)
-            violation = _violation(prepared, pts, profile, result.T_target_source)
+            profile, violation = _profile_violation(prepared, pts, config, result.T_target_source)
             verdict = _judge(result, cov, config, violation, strength)
         seed_reason = f"seeded by {pos[4]}/{head[2]}"
         seeded_fit = (result.fitness, violation)
@@ -783,8 +790,7 @@ def estimate(
     if degenerate and config.global_init:
         # ... unless the seeded alignment is inconsistent with the reference (points in space it saw empty): then the
         # seed itself is in doubt (a kidnapped robot in a corridor), and only then may a global solution overturn it
-        profile = polar_profile(pts, gap_free_m=config.gap_free_m)
-        violation = _violation(prepared, pts, profile, result.T_target_source)
+        profile, violation = _profile_violation(prepared, pts, config, result.T_target_source)
         seeded_fit = (result.fitness, violation)
         degenerate = violation <= config.max_violation
     if not verdict.reliable and config.global_init and not degenerate:
