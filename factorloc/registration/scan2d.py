@@ -19,12 +19,14 @@ from factorloc.types import PointCloud, Scan
 
 __all__ = [
     "ScanExtraction",
+    "alignment_violation",
     "estimate_normals_2d",
     "extract_scan",
     "free_space_violation",
     "limit_count",
     "overlap_fitness",
     "polar_profile",
+    "profile_and_violation",
     "voxel_downsample_2d",
 ]
 
@@ -175,8 +177,8 @@ def pca_normals(
 
     Per point, over its neighbours closer than ``max_radius_m``, relative to the point (no cancellation):
     the scatter ``S = Σ u uᵀ − (Σ u)(Σ u)ᵀ / n``, its eigenvalues ``(sxx + syy)/2 ± √(((sxx − syy)/2)² + sxy²)``
-    and the line's direction ``φ = ½ atan2(2 sxy, sxx − syy)``; the normal ``(−sin φ, cos φ)`` faces the sensor
-    at the origin.
+    and the line's direction ``φ = ½ atan2(2 sxy, sxx − syy)`` (by half-angle formulas); the normal
+    ``(−sin φ, cos φ)`` faces the sensor at the origin.
     """
     n, kk = d.shape
     for i in range(n):
@@ -208,8 +210,19 @@ def pca_normals(
         if cnt < 3:
             nx, ny, q = tx, ty, 0.0
         else:
-            phi = 0.5 * math.atan2(sxy, half_diff)
-            nx, ny = -math.sin(phi), math.cos(phi)
+            # (cos φ, sin φ) from (cos 2φ, sin 2φ) = (half_diff, sxy) / root without trigonometry: the larger of the
+            # two by its half-angle formula, the other as sin 2φ / (2 · it); φ ∈ (−π/2, π/2] as ½ atan2 gives it
+            if root > 0.0:
+                c2, s2 = half_diff / root, sxy / root
+                if c2 >= 0.0:
+                    cphi = math.sqrt(0.5 * (1.0 + c2))
+                    sphi = s2 / (2.0 * cphi)
+                else:
+                    sphi = math.copysign(math.sqrt(0.5 * (1.0 - c2)), sxy)
+                    cphi = s2 / (2.0 * sphi)
+            else:  # isotropic scatter: atan2(0, 0) = 0
+                cphi, sphi = 1.0, 0.0
+            nx, ny = -sphi, cphi
             q = 1.0 - lmin / max(lmax, 1e-300) if lmax > 0.0 else 0.0  # all neighbours at one spot: no line
             q = min(max(q, 0.0), 1.0)  # rounding: λmin may come out slightly negative
         if nx * tx + ny * ty < 0.0:  # face the sensor
@@ -386,6 +399,53 @@ def _alignment_violation(
     v_b = _violations(prof_a, pts_b, True, c_ab, s_ab, x_ab, y_ab, 0.15, 0.05) / pts_b.shape[0]
     v_a = _violations(prof_b, pts_a, True, c_ba, s_ba, x_ba, y_ba, 0.15, 0.05) / pts_a.shape[0]
     return max(v_b, v_a)
+
+
+def profile_and_violation(
+    profile_a: np.ndarray, points_a: np.ndarray, points_b: np.ndarray, T_a_b, gap_free_m: float
+) -> tuple[np.ndarray, float]:
+    """Scan b's :func:`polar_profile` (720 bins, ``gap_free_m``, default gap width) and
+    :func:`alignment_violation` of ``T_a_b`` with it, in one compiled call; the arrays as there."""
+    T_b_a = T_a_b.inverse()
+    n_bins = 720
+    return _profile_and_violation(
+        profile_a,
+        points_a,
+        points_b,
+        math.cos(T_a_b.theta),
+        math.sin(T_a_b.theta),
+        T_a_b.x,
+        T_a_b.y,
+        math.cos(T_b_a.theta),
+        math.sin(T_b_a.theta),
+        T_b_a.x,
+        T_b_a.y,
+        n_bins,
+        float(gap_free_m),
+        int(0.35 / (2 * np.pi) * n_bins),
+    )
+
+
+@njit(cache=True)
+def _profile_and_violation(
+    prof_a: np.ndarray,
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    c_ab: float,
+    s_ab: float,
+    x_ab: float,
+    y_ab: float,
+    c_ba: float,
+    s_ba: float,
+    x_ba: float,
+    y_ba: float,
+    n_bins: int,
+    gap_free_m: float,
+    max_gap_bins: int,
+) -> tuple[np.ndarray, float]:
+    prof_b = _profile(pts_b, n_bins, gap_free_m, max_gap_bins)
+    v = _alignment_violation(prof_a, pts_b, c_ab, s_ab, x_ab, y_ab, prof_b, pts_a, c_ba, s_ba, x_ba, y_ba)
+    return prof_b, v
 
 
 def overlap_fitness(
