@@ -45,6 +45,7 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy.stats import beta as beta_dist
+from scipy.stats import binom as binom_dist
 
 from factorloc.config import Config
 from factorloc.errors import InputError
@@ -70,6 +71,7 @@ __all__ = [
     "clopper_pearson",
     "compare_counts",
     "fit_exponent",
+    "power_to_show_ratio",
     "queries_to_show_ratio",
     "rate_ratio_interval",
     "run_bench",
@@ -251,25 +253,63 @@ def rate_ratio_interval(
     return _ratio_of_share(lo, trials_num, trials_den), _ratio_of_share(hi, trials_num, trials_den)
 
 
-def queries_to_show_ratio(
-    rate_num: float, rate_den: float, target: float = 5.0, confidence: float = 0.95, *, max_queries: int = 10**8
-) -> int | None:
-    """Fewest queries (per mode) whose *expected* counts would show ``rate_num / rate_den ≥ target``.
+def power_to_show_ratio(queries: int, rate_num: float, rate_den: float, target: float = 5.0, confidence: float = 0.95) -> float:
+    """Probability that ``queries`` per mode show ``ratio ≥ target`` if the rates are the true ones.
 
-    The one-sided lower bound of :func:`rate_ratio_interval` with the expected
-    counts ``n·rate`` must reach ``target``: about an even chance of showing it
-    with that many queries if the rates are the true ones (more for a
-    comfortable power). ``None`` when ``rate_num`` is 0 or the ratio of the
-    rates does not exceed ``target`` (no number of queries would show it), or
-    beyond ``max_queries``. With ``rate_den = 0`` this is the closed form
-    ``n·rate_num ≥ ln α / ln(target / (1 + target))`` (17 events for 5× at 95 %).
+    Exact: the sum, over the binomial counts ``k₁ ~ B(n, rate_num)``,
+    ``k₂ ~ B(n, rate_den)`` (independent), of the probability of the pairs whose
+    one-sided lower bound (:func:`rate_ratio_interval`) reaches ``target``
+    (tails below 1e-12 left out).
+    """
+    if queries < 1 or not (0.0 <= rate_num <= 1.0 and 0.0 <= rate_den <= 1.0):
+        raise InputError(f"need queries >= 1 and rates in [0, 1], got {queries!r}, {rate_num!r}, {rate_den!r}")
+    _check_confidence(confidence)
+
+    def support(p: float) -> np.ndarray:
+        lo, hi = binom_dist.ppf(1e-12, queries, p), binom_dist.isf(1e-12, queries, p)
+        return np.arange(int(lo), int(hi) + 1)
+
+    k1, k2 = support(rate_num), support(rate_den)
+    p1, p2 = binom_dist.pmf(k1, queries, rate_num), binom_dist.pmf(k2, queries, rate_den)
+    a1, a2 = np.meshgrid(k1.astype(np.float64), k2.astype(np.float64), indexing="ij")
+    with np.errstate(all="ignore"):
+        share = np.where(a1 > 0, beta_dist.ppf(1.0 - confidence, np.maximum(a1, 1e-300), a2 + 1.0), 0.0)
+        # ρ ≥ target ⇔ π ≥ target / (1 + target) for equal sample sizes
+        shown = share >= target / (1.0 + target)
+    return float(np.sum(np.outer(p1, p2)[shown]))
+
+
+def queries_to_show_ratio(
+    rate_num: float,
+    rate_den: float,
+    target: float = 5.0,
+    confidence: float = 0.95,
+    *,
+    power: float | None = None,
+    max_queries: int = 10**7,
+) -> int | None:
+    """Fewest queries (per mode) that would show ``rate_num / rate_den ≥ target``.
+
+    Without ``power``: the one-sided lower bound of :func:`rate_ratio_interval`
+    computed on the *expected* counts ``n·rate`` must reach ``target`` — about an
+    even chance of showing it with that many queries if the rates are the true
+    ones. With ``power``: :func:`power_to_show_ratio` must reach it (found by
+    bisection; the exact power is slightly saw-toothed in n). ``None`` when
+    ``rate_num`` is 0 or the ratio of the rates does not exceed ``target`` (no
+    number of queries would show it), or beyond ``max_queries``. With
+    ``rate_den = 0`` and no power this is the closed form
+    ``n·rate_num ≥ ln α / ln(target / (1 + target))`` (16.4 events for 5× at 95 %).
     """
     if not (rate_num >= 0.0 and rate_den >= 0.0 and target > 0.0):
         raise InputError(f"rates must be >= 0 and target > 0, got {rate_num!r}, {rate_den!r}, {target!r}")
+    if power is not None and not 0.0 < power < 1.0:
+        raise InputError(f"power must be in (0, 1), got {power!r}")
     if rate_num == 0.0 or rate_num <= target * rate_den:
         return None
 
     def shown(n: int) -> bool:
+        if power is not None:
+            return power_to_show_ratio(n, rate_num, rate_den, target, confidence) >= power
         return rate_ratio_interval(n * rate_num, n, n * rate_den, n, confidence, one_sided=True)[0] >= target
 
     hi = 1
@@ -425,7 +465,8 @@ def compare_counts(
     ``ratio_lower_bound`` (one-sided at ``confidence``), ``shows_target``
     (that bound ≥ ``target``) and ``queries_needed`` (:func:`queries_to_show_ratio`
     at the observed rates, a seeded 0 taken as 0: the best case; ``None`` when
-    the observed rates could never show it).
+    the observed rates could never show it; ``queries_needed_power_80``: for an
+    80 % chance, :func:`power_to_show_ratio`).
     """
     if queries < 1:
         raise InputError(f"queries must be >= 1, got {queries!r}")
@@ -440,7 +481,9 @@ def compare_counts(
     out["ratio_ci"] = list(rate_ratio_interval(blind_count, queries, seeded_count, queries, confidence))
     out["ratio_lower_bound"] = rate_ratio_interval(blind_count, queries, seeded_count, queries, confidence, one_sided=True)[0]
     out["shows_target"] = bool(out["ratio_lower_bound"] >= target)  # nan >= target is False
-    out["queries_needed"] = queries_to_show_ratio(blind_count / queries, seeded_count / queries, target, confidence)
+    rates = (blind_count / queries, seeded_count / queries)
+    out["queries_needed"] = queries_to_show_ratio(*rates, target, confidence)
+    out["queries_needed_power_80"] = queries_to_show_ratio(*rates, target, confidence, power=0.8)
     return out
 
 

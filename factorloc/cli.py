@@ -399,7 +399,8 @@ def hierarchy_table(h: dict[str, Any]) -> Table:
         if c.get("shows_target"):
             need.append(f"{label} shown")
         elif q is not None:
-            need.append(f"{label} ≈ {q}")
+            q80 = c.get("queries_needed_power_80")
+            need.append(f"{label} ≈ {q}" + ("" if q80 is None else f" ({q80} for 80 %)"))
         else:
             need.append(f"{label}: no blind false +" if c["blind"]["count"] == 0 else f"{label}: ratio ≤ {target:g}×")
     t.add_row(f"queries to show {target:g}× (now {n})", "", "", "; ".join(need))

@@ -199,3 +199,16 @@ def test_hierarchy_ablation_reports_exact_intervals_and_the_sample_a_5x_claim_ne
     assert compass["seeded"]["per_reliable_ci"][1] == pytest.approx(1 - 0.025 ** (1 / 3))
     odo = fp["steps"]["odometry"]["sigma3"]
     assert odo["seeded"]["count"] == odo["blind"]["count"] == 0 and math.isnan(odo["ratio"])
+
+
+def test_power_to_show_a_ratio_is_the_chance_of_enough_blind_events() -> None:
+    from scipy.stats import binom
+
+    from factorloc.benchmarking import power_to_show_ratio, queries_to_show_ratio
+
+    # seeded rate 0: 5x is shown exactly when blind has >= 17 events (16.4 needed)
+    assert power_to_show_ratio(3049, 2 / 300, 0.0) == pytest.approx(binom.sf(16, 3049, 2 / 300), rel=1e-9)
+    assert power_to_show_ratio(16, 1.0, 0.0) == 0.0 and power_to_show_ratio(17, 1.0, 0.0) == 1.0
+    n80 = queries_to_show_ratio(2 / 300, 0.0, power=0.8)
+    assert power_to_show_ratio(n80, 2 / 300, 0.0) >= 0.8 > power_to_show_ratio(n80 - 40, 2 / 300, 0.0)
+    assert n80 > queries_to_show_ratio(2 / 300, 0.0)  # an even chance needs fewer

@@ -256,5 +256,5 @@ def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sam
     # and the 2465 queries at which 0.67 % blind vs 0 seeded would show 5×
     assert "0 [0.0–1.2 %]" in text and "2 [0.1–2.4 %]" in text and "∞ (≥ 0.29×)" in text
     assert "steps after odometry: false + (> 3σ)" in text and "steps: no blind false +" in text
-    assert "fused ≈ 2465" in text and "6.3×" in text
+    assert "fused ≈ 2465 (3049 for 80 %)" in text and "6.3×" in text
     assert "6 / 250" in text and "1.0× (≥ 0.33×)" in text
