@@ -31,6 +31,79 @@ def _row(rows: list[dict], method: str, subset: str) -> dict:
     return next(r for r in rows if r["method"] == method and r["subset"] == subset)
 
 
+def _open3d_local_ratios(log, relations, results, repeats: int = 3) -> tuple[float, float]:  # noqa: ANN001
+    """Median over the local relations of the per-pair time ratios (a) Open3D ``registration_icp`` point-to-plane
+    bare (its clouds, with our normals, built before the clock starts) / ours and (b) Open3D's per-pair job from
+    the raw arrays (build both clouds, the reference's normals — our 2D PCA ones: Open3D's ``estimate_normals``
+    gives ±z on a planar cloud —, ``registration_icp``, ``get_information_matrix_from_point_clouds``) / ours.
+
+    Ours is the whole ICP step as the relations benchmark times it (``IcpStep.prepare`` + ``IcpStep.estimate``,
+    seeded by the odometry hypothesis of ``relations_config``/``OdometryModel``), timed again here in turn with
+    the two Open3D figures on the same pairs with the same odometry seeds (the relations benchmark's own times
+    run amid the other methods' work), 0.5 m correspondence distance for Open3D; the fastest of ``repeats``
+    runs per pair and method, as in ``benchmarks/bench_align.py``.
+    """
+    import open3d as o3d
+
+    from factorloc.estimators.base import Hypotheses
+    from factorloc.estimators.icp import IcpStep
+    from factorloc.estimators.odometry import estimate as odometry_estimate
+    from factorloc.evaluation.relations import OdometryModel, relations_config
+    from factorloc.registration.scan2d import estimate_normals_2d
+    from factorloc.types import Query, Reference, Scan
+
+    reg = o3d.pipelines.registration
+    p2l = reg.TransformationEstimationPointToPlane()
+    criteria = reg.ICPConvergenceCriteria(max_iteration=50)
+    config = relations_config()
+    step = IcpStep(config.icp)
+    model = OdometryModel()
+
+    def cloud(points_m: np.ndarray, normals: np.ndarray | None = None):  # noqa: ANN202 - open3d object
+        c = o3d.geometry.PointCloud()
+        c.points = o3d.utility.Vector3dVector(np.column_stack([points_m, np.zeros(len(points_m))]))
+        if normals is not None:
+            c.normals = o3d.utility.Vector3dVector(np.column_stack([normals, np.zeros(len(normals))]))
+        return c
+
+    def ours(reference: Reference, query: Query, hyp: Hypotheses) -> None:
+        step.estimate(step.prepare(reference), query, hyp)
+
+    def job(ref: np.ndarray, qry: np.ndarray, T0: np.ndarray) -> None:
+        src, tgt = cloud(qry), cloud(ref, estimate_normals_2d(ref)[0])
+        res = reg.registration_icp(src, tgt, 0.5, T0, p2l, criteria)
+        reg.get_information_matrix_from_point_clouds(src, tgt, 0.5, res.transformation)
+
+    local = sorted({r.index for r in results if r.method == "ours" and r.kind == "local"})
+    bare_r, job_r = [], []
+    for i in local:
+        t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
+        ref_scan, qry_scan = log.scans.at(t1, 2e-3), log.scans.at(t2, 2e-3)
+        ref, qry = ref_scan.points_m, qry_scan.points_m
+        seed = log.odometry.between(t1, t2)
+        odom = model.odometry(seed, *log.odometry.distance_between(t1, t2))
+        hyp = Hypotheses().plus(odometry_estimate(odom, config.odometry))
+        reference, query = Reference(scan=Scan(ref)), Query(scan=Scan(qry))
+        T0 = np.eye(4)
+        T0[:2, :2] = [[math.cos(seed.theta), -math.sin(seed.theta)], [math.sin(seed.theta), math.cos(seed.theta)]]
+        T0[0, 3], T0[1, 3] = seed.x, seed.y
+        src, tgt = cloud(qry), cloud(ref, estimate_normals_2d(ref)[0])
+        calls = (
+            (ours, (reference, query, hyp)),
+            (reg.registration_icp, (src, tgt, 0.5, T0, p2l, criteria)),
+            (job, (ref, qry, T0)),
+        )
+        best = [math.inf, math.inf, math.inf]
+        for _ in range(repeats):
+            for k, (f, args) in enumerate(calls):
+                t0 = time.perf_counter()
+                f(*args)
+                best[k] = min(best[k], time.perf_counter() - t0)
+        bare_r.append(best[1] / best[0])
+        job_r.append(best[2] / best[0])
+    return float(np.median(bare_r)), float(np.median(job_r))
+
+
 def sim_calibration(n: int, seed: int = 2) -> dict:
     """Mean NEES of (x4, y4) and the fraction outside the 99 % ellipse on simulated seeded queries.
 
@@ -164,11 +237,13 @@ def main() -> None:
         log = read_laser_log(args.data / f"{name}.sort.bag")
         rel = read_relations(args.data / f"{name}.relations").subset(args.every)
         t0 = time.perf_counter()
-        rows = summarize(relations_benchmark(log, rel), name)
+        results = relations_benchmark(log, rel)
+        rows = summarize(results, name)
         all_rows += rows
         print(format_table(rows))
         ours, peer = _row(rows, "ours", "local"), _row(rows, "open3d_p2plane", "local")
         icp = _row(rows, "ours_icp", "local")
+        bare, job = _open3d_local_ratios(log, rel, results)
         print(
             f"{name}: local translation error ours/open3d_p2plane = {ours['trans_mean_cm'] / peer['trans_mean_cm']:.2f} "
             f"(ICP alone {icp['trans_mean_cm'] / peer['trans_mean_cm']:.2f}); "
@@ -176,7 +251,13 @@ def main() -> None:
             f"{peer['ms_median'] / ours['ms_median']:.2f} (median); "
             f"loop recovered {100 * _row(rows, 'ours', 'loop')['recovered_rate']:.1f} %, "
             f"unrecovered flagged {100 * _row(rows, 'ours', 'loop')['unrecovered_flagged_rate']:.1f} %; "
-            f"{time.perf_counter() - t0:.0f} s\n"
+            f"{time.perf_counter() - t0:.0f} s"
+        )
+        print(
+            f"{name}: local relations, time per pair against our whole ICP step (prepare + estimate, timed again in "
+            f"turn with Open3D, fastest of 3), median of the per-pair ratios: (a) Open3D registration_icp bare / ours "
+            f"= {bare:.2f}, (b) Open3D's per-pair job (clouds from arrays, normals, registration_icp, information "
+            f"matrix) / ours = {job:.2f}\n"
         )
     if args.sim:
         cal = sim_calibration(args.sim)
