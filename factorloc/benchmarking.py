@@ -405,14 +405,15 @@ def _outcomes(run: HierarchyRun, tolerance_m: float, tolerance_rad: float) -> _O
     return _Outcomes(names, arr(rel), arr(s3), arr(tol), np.array(f3, dtype=bool), np.array(ft, dtype=bool))
 
 
-def _false_positives(run: HierarchyRun) -> dict[str, Any]:
+def _false_positives(run: HierarchyRun, outcomes: _Outcomes | None = None) -> dict[str, Any]:
     """Per step and in total: reliable estimates whose error exceeds 3σ (over queries with truth).
 
     The total leaves out the first step of the hierarchy: it has no
     predecessors, so seeding cannot change it (its false positives are the
-    same seeded and blind and would only dilute the ratio).
+    same seeded and blind and would only dilute the ratio). ``outcomes``:
+    :func:`_outcomes` of ``run`` when already computed.
     """
-    o = _outcomes(run, math.inf, math.inf)
+    o = outcomes if outcomes is not None else _outcomes(run, math.inf, math.inf)
     n_truth = int(o.reliable.shape[0])
     per_step = dict(zip(o.step_names, o.sigma3.sum(axis=0).tolist(), strict=True))
     reliable = dict(zip(o.step_names, o.reliable.sum(axis=0).tolist(), strict=True))
@@ -523,8 +524,8 @@ def bench_hierarchy(
         if not runs:
             raise InputError(f"bench_hierarchy needs at least one {label} HierarchyRun")
         total, steps = _per_query_median(runs)
-        fp = _false_positives(runs[0])
         outcomes[label] = _outcomes(runs[0], settings.fp_tolerance_m, settings.fp_tolerance_rad)
+        fp = _false_positives(runs[0], outcomes[label])
         report = evaluate(runs[0]).to_json_dict()
         out[label] = {
             **_ms_stats(total),
