@@ -187,3 +187,59 @@ def test_polar_profile_and_violation_reproduce_a_per_point_loop() -> None:
             assert free_space_violation(prof, probe) == _reference_violation(prof, probe)
     assert np.all(np.isnan(polar_profile(np.zeros((0, 2)), gap_free_m=2.0)))
     assert free_space_violation(np.full(720, np.nan), room) == 0.0
+
+
+def _reference_overlap(prof_a, pts_a, prof_b, pts_b, T, d: float) -> tuple[float, int]:
+    """Overlap fitness written plainly (cKDTree, numpy): what the compiled :func:`overlap_fitness` must reproduce."""
+    out = []
+    b_in_a = T.transform_points(pts_b)
+    a_in_b = T.inverse().transform_points(pts_a)
+    for pts, prof, other in ((b_in_a, prof_a, pts_a), (a_in_b, prof_b, pts_b)):
+        bins = np.floor((np.arctan2(pts[:, 1], pts[:, 0]) + np.pi) / (2 * np.pi) * len(prof)).astype(np.int64) % len(prof)
+        free = prof[bins]
+        rho = np.hypot(pts[:, 0], pts[:, 1])
+        vis = np.isfinite(free) & (rho <= free + np.maximum(0.15, 0.05 * np.nan_to_num(free)))
+        if not vis.any():
+            out.append((0.0, 0))
+            continue
+        dist, _ = cKDTree(other).query(pts[vis], distance_upper_bound=d)
+        out.append((float(np.mean(dist < d)), int(vis.sum())))
+    (f1, n1), (f2, n2) = out
+    return min(f1, f2), min(n1, n2)
+
+
+def _room_scan(rng: np.random.Generator, n: int, fov_rad: float) -> np.ndarray:
+    a = rng.uniform(-fov_rad / 2, fov_rad / 2, n)
+    return np.column_stack([np.cos(a), np.sin(a)]) * rng.uniform(1.0, 6.0, (n, 1))
+
+
+def test_overlap_fitness_and_alignment_violation_reproduce_the_plain_numpy_forms() -> None:
+    from factorloc.geometry import Pose2
+    from factorloc.registration.scan2d import alignment_violation, overlap_fitness, profile_and_violation
+
+    rng = np.random.default_rng(5)
+    checked_fit = checked_violation = 0
+    for trial in range(40):
+        a = _room_scan(rng, 180, math.pi)
+        b = _room_scan(rng, 150, math.pi if trial % 2 else 2 * math.pi)
+        T = Pose2(rng.normal(0, 0.5), rng.normal(0, 0.5), rng.uniform(-math.pi, math.pi))
+        pa, pb = polar_profile(a, gap_free_m=2.0), polar_profile(b, gap_free_m=2.0)
+        for d in (0.05, 0.3):
+            got = overlap_fitness(pa, a, pb, b, T, d)
+            assert got == _reference_overlap(pa, a, pb, b, T, d)
+            checked_fit += got[1] > 0 and 0.0 < got[0] < 1.0
+        v = max(free_space_violation(pa, T.transform_points(b)), free_space_violation(pb, T.inverse().transform_points(a)))
+        assert alignment_violation(pa, a, pb, b, T) == v
+        prof, v2 = profile_and_violation(pa, a, b, T, 2.0)
+        np.testing.assert_array_equal(prof, pb)
+        assert v2 == v
+        checked_violation += 0.0 < v < 1.0
+    assert checked_fit >= 20 and checked_violation >= 20  # the comparisons saw partial fits and violations
+
+
+def test_profile_and_violation_reject_nan_points() -> None:
+    bad = np.array([[1.0, 0.0], [np.nan, 1.0], [2.0, 2.0]])
+    with pytest.raises(InputError, match="NaN"):
+        polar_profile(bad)
+    with pytest.raises(InputError, match="NaN"):
+        free_space_violation(np.full(720, 3.0), bad)
