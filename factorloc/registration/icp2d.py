@@ -42,7 +42,15 @@ from numba import njit
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.kernels import Cauchy, RobustKernel, weight_scalar
-from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, grid_nearest2
+from factorloc.registration.nn import (
+    GRID_CELL_M,
+    GRID_MAX_CELLS,
+    KdTree2D,
+    build_grid,
+    grid_nearest,
+    grid_nearest2,
+    nearest_within,
+)
 from factorloc.registration.scan2d import pca_normals
 
 __all__ = ["IcpParams", "IcpResult", "PreparedScan", "align", "prepare_target"]
@@ -258,8 +266,9 @@ class PreparedScan:
 
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
-    """Build the KD-tree, PCA line normals and search grid of a target scan (once per reference): one batched
-    k-nearest-neighbour search of the tree, then one compiled pass (:func:`_prepare_core`).
+    """Build the PCA line normals and search grid of a target scan (once per reference): the normals'
+    neighbours (:func:`~factorloc.registration.nn.nearest_within`: the KD-tree's, searched on a grid), then one
+    compiled pass (:func:`_prepare_core`). The KD-tree is built on its first query.
 
     Raises :class:`~factorloc.errors.InputError` on fewer than 3 points, non-finite points or coordinates
     beyond :data:`MAX_COORDINATE_M`.
@@ -272,11 +281,9 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
     _check_coordinates("target points_m", pts)
     if pts is points_m and pts.flags.writeable:
         pts = pts.copy()  # the caller's array stays writable; ours is frozen
-    tree = KdTree2D(pts)
-    m = len(pts)
-    kk = min(params.normal_k, m)
-    d, idx = tree.nearest_lifted(tree.lifted, kk)
-    out = _prepare_core(pts, d.reshape(m, kk), idx.reshape(m, kk), float(params.normal_radius_m), GRID_CELL_M, GRID_MAX_CELLS)
+    tree = KdTree2D(pts)  # built on its first query: for the few ties of nearest_within, or by a caller
+    d, idx = nearest_within(pts, params.normal_k, params.normal_radius_m, tree)
+    out = _prepare_core(pts, d, idx, float(params.normal_radius_m), GRID_CELL_M, GRID_MAX_CELLS)
     for a in (pts,) + out:
         a.setflags(write=False)
     normals, quality, ranges = out[:3]

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from factorloc.errors import InputError
-from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, lift_2d
+from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, nearest_within
 from factorloc.types import PointCloud, Scan
 
 __all__ = [
@@ -139,8 +139,9 @@ def estimate_normals_2d(
     perfectly straight); points with fewer than 3 neighbours get quality 0
     and a normal pointing at the sensor.
 
-    The neighbours come from ``tree`` (a :class:`~factorloc.registration.nn.KdTree2D` on ``points_m``, built
-    when not given); the PCA runs compiled (:func:`pca_normals`).
+    The neighbours are the exact ones of a KD-tree (:func:`~factorloc.registration.nn.nearest_within`: a
+    compiled grid search, the KD-tree ``tree`` — a :class:`~factorloc.registration.nn.KdTree2D` on
+    ``points_m``, built when needed and not given — only for ties); the PCA runs compiled (:func:`pca_normals`).
 
     Returns
     -------
@@ -155,16 +156,10 @@ def estimate_normals_2d(
         return np.zeros((0, 2)), np.zeros(0)
     if not np.isfinite(pts).all():
         raise InputError("points_m contains NaN or infinite values")
-    if tree is None:
-        tree = KdTree2D(pts)
-        lifted = tree.lifted
-    else:
-        lifted = lift_2d(pts)
-    kk = min(k, n)
-    d, idx = tree.nearest_lifted(lifted, kk)
+    d, idx = nearest_within(pts, k, max_radius_m, tree)
     normals = np.empty((n, 2))
     quality = np.empty(n)
-    pca_normals(pts, d.reshape(n, kk), idx.reshape(n, kk), float(max_radius_m), normals, quality)
+    pca_normals(pts, d, idx, float(max_radius_m), normals, quality)
     return normals, quality
 
 
