@@ -333,6 +333,41 @@ class IcpConfig:
         ratio 0.58) and checked on ACES (88 loops: unchanged, one more
         reliable 11 cm / 1.1° result) and on the simulated kidnapped robots
         (29/30 recovered, 0 confidently wrong).
+    global_overlap_min_fitness, global_overlap_min_score, global_overlap_rival_ratio, global_overlap_rival_margin
+        The overlap test of a *global* solution without a reliable position
+        seed. Its overlap fitness (the fitness over the points each sensor
+        could have seen: :func:`_overlap_fitness`, the smaller direction)
+        measures how well it explains what the two views share, whatever
+        their overlap; the score (fitness − violation) measures how much they
+        share. Two rules:
+
+        * *overlap-supported*: a solution whose score lies in
+          [``global_overlap_min_score``, ``min_score``) (its fitness may then
+          be below ``min_fitness``) is not rejected for it when its
+          constraint is not degenerate, its overlap fitness reaches
+          ``global_overlap_min_fitness``, every distinct rival scores below
+          ``global_overlap_rival_ratio`` × its score, and the best rival
+          either scores below ``global_low_score_ratio`` × its score or
+          explains its own overlap worse by at least
+          ``global_overlap_rival_margin`` (a rival that explains its overlap
+          as well is the same evidence elsewhere: measured, an Intel local
+          relation without a seed, overlap 0.98 vs 0.96, ratio 0.58, the best
+          2 m wrong);
+        * *comparable rival*: a solution with a distinct rival scoring at
+          least ``global_ambiguity_overlap_ratio`` × its score must reach
+          ``global_overlap_min_fitness``, otherwise it is ambiguous.
+
+        Fitted on the even-indexed Intel loop relations and checked on the
+        odd ones, on ACES and on the local relations without a reliable seed
+        (:file:`benchmarks/bench_icp.py`; rule replica over the dumped global
+        candidates): recovered and reliable 529 → 536 (even) / 507 → 520
+        (odd) of 1211 with the first rule; the second flags every reliable
+        wrong loop solution (Intel 4 → 0: 4 m / 89°, 0.5 m, 0.9 m, 0.5 m /
+        173°, overlap fitness 0.63–0.85 at rival ratios 0.78–0.83; ACES
+        1 → 0: a 180° flip, overlap 0.80 at 0.81) and costs 3 correct ACES
+        loops (overlap 0.75–0.81) and 5 Intel ones.
+    global_ambiguity_overlap_ratio
+        See above.
     seed_heading_window_rad
         Heading half-window of the global search when a reliable heading
         exists (at least this, or 3σ of that heading); the full circle otherwise.
@@ -421,6 +456,11 @@ class IcpConfig:
     global_degenerate_min_score: float = 0.8
     global_low_min_score: float = 0.3
     global_low_score_ratio: float = 0.5
+    global_overlap_min_fitness: float = 0.9
+    global_overlap_min_score: float = 0.2
+    global_overlap_rival_ratio: float = 0.8
+    global_overlap_rival_margin: float = 0.05
+    global_ambiguity_overlap_ratio: float = 0.75
     seed_heading_window_rad: float = math.radians(10.0)
     seed_radius_margin_m: float = 0.5
     seed_gate_margin_m: float = 0.1
@@ -462,6 +502,11 @@ class IcpConfig:
             "global_degenerate_min_score",
             "global_low_min_score",
             "global_low_score_ratio",
+            "global_overlap_min_fitness",
+            "global_overlap_min_score",
+            "global_overlap_rival_ratio",
+            "global_overlap_rival_margin",
+            "global_ambiguity_overlap_ratio",
             "degenerate_min_score",
         ):
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -684,9 +729,11 @@ def _judge(
     violation: float = 0.0,
     strength: float | None = None,
     rival_ratio: float | None = None,
+    overlap: tuple[float, float] | None = None,
 ) -> _Verdict:
-    """The reliability test; ``rival_ratio`` (best distinct rival's score / this score) only for global solutions
-    without a position seed."""
+    """The reliability test; ``rival_ratio`` (best distinct rival's score / this score) and ``overlap`` (the overlap
+    fitness of this solution and of that rival, 0 without one) only for global solutions without a position seed
+    (see ``IcpConfig.global_overlap_min_fitness``)."""
     problems = []
     strength = constraint_strength(result) if strength is None else strength
     score = result.fitness - config.violation_weight * violation
@@ -703,12 +750,32 @@ def _judge(
         and rival_ratio < config.global_low_score_ratio
         and score >= config.global_low_min_score
     )
-    if score < config.min_score and not low_ok:
+    # overlap-supported: little shared, but what is shared is explained, and no rival explains it as well
+    overlap_ok = (
+        dominant
+        and overlap is not None
+        and strength >= config.min_constraint
+        and overlap[0] >= config.global_overlap_min_fitness
+        and rival_ratio < config.global_overlap_rival_ratio
+        and score >= config.global_overlap_min_score
+        and (rival_ratio < config.global_low_score_ratio or overlap[1] <= overlap[0] - config.global_overlap_rival_margin)
+    )
+    if score < config.min_score and not (low_ok or overlap_ok):
         problems.append(f"score (fitness − violation) {score:.2f} < {config.min_score:.2f}")
     if result.n_inliers < config.min_inliers:
         problems.append(f"{result.n_inliers} correspondences < {config.min_inliers}")
-    if result.fitness < config.min_fitness:
+    if result.fitness < config.min_fitness and not overlap_ok:
         problems.append(f"fitness {result.fitness:.2f} < {config.min_fitness:.2f}")
+    if (
+        dominant
+        and overlap is not None
+        and rival_ratio >= config.global_ambiguity_overlap_ratio
+        and overlap[0] < config.global_overlap_min_fitness
+    ):
+        problems.append(
+            f"ambiguous: a distinct solution scores {rival_ratio:.2f}× and the overlap fitness is only "
+            f"{overlap[0]:.2f} < {config.global_overlap_min_fitness:.2f}"
+        )
     if not result.rmse_m <= config.max_rmse_m:
         problems.append(f"rmse {result.rmse_m:.3f} m > {config.max_rmse_m:.3f} m")
     if result.chamfer_m > config.max_chamfer_m:
@@ -769,8 +836,9 @@ def _global(
     heading: float,
     half_width: float,
     radius_m: float,
-) -> tuple[IcpResult | None, float, float, float, int]:
-    """Global search + ICP refinement: (best result, its violation, its score, the best distinct rival's score, candidates)."""
+) -> tuple[IcpResult | None, float, float, float, int, Pose2 | None]:
+    """Global search + ICP refinement: (best result, its violation, its score, the best distinct rival's score,
+    candidates, that rival's pose or None)."""
     kernel = _kernel(config.kernel, config.kernel_scale_m)
     params = config.global_search
     if radius_m < params.radius_m:
@@ -795,11 +863,15 @@ def _global(
         v = _violation(prepared, points, profile, r.T_target_source)
         scored.append((r.fitness - config.violation_weight * v, v, r))
     if not scored:
-        return None, 0.0, 0.0, 0.0, 0
+        return None, 0.0, 0.0, 0.0, 0, None
     scored.sort(key=lambda x: (-x[0], x[2].rmse_m))
     score, v, best = scored[0]
-    rival = max((sc for sc, _, r in scored[1:] if _distinct(r.T_target_source, best.T_target_source, config)), default=0.0)
-    return best, v, score, rival, len(cands)
+    # the best distinct rival: the first distinct one in score order
+    rival, rival_T = next(
+        ((sc, r.T_target_source) for sc, _, r in scored[1:] if _distinct(r.T_target_source, best.T_target_source, config)),
+        (0.0, None),
+    )
+    return best, v, score, rival, len(cands), rival_T
 
 
 def estimate(
@@ -840,10 +912,9 @@ def estimate(
         ``seeded_violation`` (the seeded attempt's, kept when a global result replaces it), ``seed_misfit`` (only
         when the seeded alignment put more than ``max_violation`` of the scan into seen-free space: the scan
         refutes the seed), and after a global initialization ``overlap_fitness`` / ``overlap_points`` (the
-        fitness over the points each sensor could have seen, the smaller direction, and that count; a
-        diagnostic for partially overlapping 180° scans, not used in the verdict: accepting low-score global
-        solutions whose overlap fitness reached 0.95 with rivals below 0.75× added 10 correct Intel loops and
-        no wrong one, but was 2 m wrong on an Intel local relation without a seed, rival ratio 0.58).
+        fitness over the points each sensor could have seen, the smaller direction, and that count; without a
+        position seed it enters the verdict, see ``IcpConfig.global_overlap_min_fitness``) and, without a position
+        seed, ``rival_overlap_fitness`` (the best distinct rival's; 0 without one).
     """
     if not isinstance(prepared, IcpReference):
         raise InputError(f"prepared must be an IcpReference, got {type(prepared).__name__}")
@@ -873,6 +944,7 @@ def estimate(
     n_cands = 0
     seed_reason = ""
     seeded_fit = (math.nan, math.nan)  # the seeded ICP's (fitness, violation), for the diagnostics
+    overlap_pair: tuple[float, float] | None = None  # a seedless global solution's and its rival's overlap fitness
     profile: np.ndarray | None = None
     if seeded:
         T_seed = T_rw * Pose2(pos[0], pos[1], head[0])
@@ -929,18 +1001,29 @@ def estimate(
             earlier.append((result.fitness - config.violation_weight * violation, result.T_target_source))
             seeded_fit = (result.fitness, violation)
         for w_radius, w_heading, w_half in windows:
-            g, g_v, g_score, g_rival, g_n = _global(prepared, pts, profile, config, center, w_heading, w_half, w_radius)
+            g, g_v, g_score, g_rival, g_n, g_rival_T = _global(
+                prepared, pts, profile, config, center, w_heading, w_half, w_radius
+            )
             if g is None:
                 continue
             # a distinct earlier solution scoring nearly as well makes a global solution ambiguous too
-            g_rival = max([g_rival] + [sc for sc, T in earlier if _distinct(T, g.T_target_source, config)])
+            for sc, T in earlier:
+                if sc > g_rival and _distinct(T, g.T_target_source, config):
+                    g_rival, g_rival_T = sc, T
             earlier.append((g_score, g.T_target_source))
             g_cov = _covariance(g, config)
             g_strength = constraint_strength(g)
             # the relaxed tests of a dominant global solution apply only without a position seed (a loop closure, a
             # robot without odometry): next to a reliable seed, a solution elsewhere needs the plain evidence
             dominance = (g_rival / g_score if g_score > 0.0 else math.inf) if pos is None else None
-            g_verdict = _judge(g, g_cov, config, g_v, g_strength, dominance)
+            g_overlap = None
+            if dominance is not None:
+                # how well the solution, and its best rival, explain what both sensors could see
+                g_overlap = (
+                    _overlap_fitness(prepared, pts, profile, g.T_target_source, config)[0],
+                    0.0 if g_rival_T is None else _overlap_fitness(prepared, pts, profile, g_rival_T, config)[0],
+                )
+            g_verdict = _judge(g, g_cov, config, g_v, g_strength, dominance, g_overlap)
             ratio = config.ambiguity_ratio
             if pos is not None:
                 # a solution outside the region of a reliable position seed overturns it: only unambiguous evidence may
@@ -962,7 +1045,7 @@ def estimate(
                 g_verdict = _Verdict(False, f"ambiguous: a distinct solution scores {g_rival:.2f} vs {g_score:.2f}")
             if result is None or g_verdict.reliable or g.fitness > result.fitness:
                 result, cov, verdict, used_global, violation, strength = g, g_cov, g_verdict, True, g_v, g_strength
-                score, rival, n_cands = g_score, g_rival, g_n
+                score, rival, n_cands, overlap_pair = g_score, g_rival, g_n, g_overlap
                 seed_reason = "global initialization" + ("" if w_radius == radius and w_half == half else ", widened")
             if verdict.reliable:
                 break
@@ -1020,6 +1103,8 @@ def estimate(
         diagnostics["overlap_fitness"], diagnostics["overlap_points"] = _overlap_fitness(
             prepared, pts, prof_q, result.T_target_source, config
         )
+        if overlap_pair is not None:
+            diagnostics["rival_overlap_fitness"] = overlap_pair[1]
     if seeded and not math.isnan(seeded_fit[1]) and seeded_fit[1] > config.max_violation:
         # for the seed audit of the pipeline (factorloc.gating): the scan contradicts the seed itself
         diagnostics["seed_misfit"] = (

@@ -131,6 +131,56 @@ def test_intel_loop_closures_recovered_by_global_initialization(laser_dir: Path,
         assert est.diagnostics["overlap_points"] >= 30
 
 
+@pytest.mark.parametrize(
+    ("index", "why"),
+    [
+        (2833, "turned by 86°: score 0.21, fitness 0.21 < min_fitness, but 95 % of the shared view fits; rivals < 0.5 x"),
+        (2711, "turned by 92°: score 0.39; a rival at 0.71 x explains its own overlap worse (0.87 vs 1.00)"),
+    ],
+)
+def test_intel_loop_closures_accepted_on_their_overlap_fitness(laser_dir: Path, index: int, why: str) -> None:
+    est, err_m, err_deg = _loop_estimate(laser_dir, "intel", index)
+    cfg = IcpConfig()
+    assert est.reliable, why
+    assert err_m < 0.10 and err_deg < 1.0
+    d = est.diagnostics
+    assert d["global_score"] < cfg.min_score  # the plain score test would reject it
+    assert d["overlap_fitness"] >= cfg.global_overlap_min_fitness
+    assert d["rival_score"] < cfg.global_overlap_rival_ratio * d["global_score"]
+
+
+@pytest.mark.parametrize(
+    ("name", "index"),
+    [("intel", 2381), ("intel", 2343), ("aces", 1254)],
+)
+def test_loop_solutions_with_a_comparable_rival_and_a_poor_overlap_are_flagged(laser_dir: Path, name: str, index: int) -> None:
+    # reliable before the overlap test, and wrong: 0.9 m / 0.5 m off (Intel), a 180° flip (ACES); a distinct rival
+    # scores 0.78-0.81 x and only 76-85 % of what both sensors could see fits
+    est, err_m, err_deg = _loop_estimate(laser_dir, name, index)
+    cfg = IcpConfig()
+    assert err_m > 0.4
+    assert not est.reliable
+    assert "overlap fitness is only" in est.reason
+    assert est.diagnostics["rival_score"] >= cfg.global_ambiguity_overlap_ratio * est.diagnostics["global_score"]
+    assert est.diagnostics["overlap_fitness"] < cfg.global_overlap_min_fitness
+
+
+def test_a_low_score_solution_is_not_accepted_when_its_rival_explains_the_overlap_as_well(laser_dir: Path) -> None:
+    # Intel local relation 675 with an unreliable odometry heading (no seed at all): the best global solution is 2 m
+    # off along a corridor; the rival (the truth) scores 0.58 x with the same overlap fitness (0.96 vs 0.98)
+    log, rel = _log(laser_dir / "intel.sort.bag"), read_relations(laser_dir / "intel.relations")
+    t1, t2 = float(rel.t1_s[675]), float(rel.t2_s[675])
+    cfg = relations_config().icp
+    prep = IcpReference(log.scans.at(t1, 2e-3).points_m, Pose2(0.0, 0.0, 0.0), cfg)
+    est = estimate(prep, log.scans.at(t2, 2e-3).points_m, Hypotheses(), cfg)
+    err = Pose2.from_array(rel.poses[675]).between(Pose2.from_array(est.values))
+    d = est.diagnostics
+    assert math.hypot(err.x, err.y) > 1.5
+    assert d["overlap_fitness"] >= cfg.global_overlap_min_fitness  # the overlap alone would accept it
+    assert d["rival_overlap_fitness"] > d["overlap_fitness"] - cfg.global_overlap_rival_margin
+    assert not est.reliable and "score" in est.reason
+
+
 @pytest.mark.parametrize("index", [1242, 1223])
 def test_aces_corridor_loops_with_a_near_twin_are_flagged(laser_dir: Path, index: int) -> None:
     # ACES corridors: the global solution is the corridor's 180° twin, metres off; its rivals score nearly as well
