@@ -339,8 +339,8 @@ def test_correlated_error_grows_as_the_fitness_falls() -> None:
 
 def test_simulated_laser_scans_are_never_confidently_wrong_and_at_most_5x_cautious() -> None:
     # the simulated LMS200 model errs less than the real logs at the same fit RMSE (IcpConfig.bias_rmse_ratio): the
-    # default σ, set on the real logs, is cautious here; measured on these 26 reliable pairs: position NEES 0.37
-    # (largest 2.8), heading 0.15 (largest 0.95)
+    # default σ, set on the real logs, is cautious here; measured on these 26 reliable pairs: position NEES 0.36
+    # (largest 2.8), heading 0.10 (largest 0.65)
     pos, head = [], []
     for seed in range(30):
         ref, pts, truth, hyp = _laser_pair(100 + seed)
@@ -388,7 +388,7 @@ def test_real_laser_logs_heading_and_position_sigma_are_honest_in_bulk_and_tail(
     name, pos, head = real_local_nees
     assert len(pos) > 45
     # 2 dof / 1 dof: a calibrated σ has means 2 / 1; the real errors are heavy-tailed, so the σ is set by the tail.
-    # Measured (Intel 88 / ACES 55 estimates): position NEES 0.65 / 0.78, heading 0.50 / 0.69; beyond 3σ one Intel
-    # position (1.1 %), no heading. On every local relation the shares beyond 3σ are ≤ 0.2 % (IcpConfig docstring).
+    # Measured (Intel 88 / ACES 57 estimates): position NEES 0.61 / 0.82, heading 0.34 / 0.52, none beyond 3σ; one
+    # outlier is tolerated (on every local relation the shares beyond 3σ are ≤ 0.2 %, see the IcpConfig docstring).
     assert 0.4 < pos.mean() < 2.0 and np.sum(pos > 11.83) <= 1
-    assert 0.3 < head.mean() < 1.0 and np.sum(head > 9.0) <= 1
+    assert 0.25 < head.mean() < 1.0 and np.sum(head > 9.0) <= 1
