@@ -650,6 +650,10 @@ def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, 
     return alignment_violation(prepared.profile, prepared.points_m, profile, points, T)
 
 
+_NO_COVARIANCE = np.eye(3)
+_NO_COVARIANCE.setflags(write=False)
+
+
 def _profile_violation(prepared: IcpReference, points: np.ndarray, config: IcpConfig, T: Pose2) -> tuple[np.ndarray, float]:
     """The query's free-space profile (``polar_profile(points, gap_free_m=config.gap_free_m)``) and :func:`_violation`
     of the alignment ``T``, in one compiled call (:func:`~factorloc.registration.scan2d.profile_and_violation`)."""
@@ -934,7 +938,7 @@ def estimate(
 
     result: IcpResult | None = None
     verdict = _Verdict(False, "no seed")
-    cov = np.eye(3)
+    cov = _NO_COVARIANCE  # every path that sets a result sets its covariance
     seeded = pos is not None and head is not None
     used_global = False
     rival = 0.0
