@@ -44,6 +44,15 @@ hypothesis the pairs are re-voted from positions within ±2σ of it, and a
 better-supported mode more than 3σθ2 away makes θ2 unreliable; (iv) after a
 resection the inliers are chosen again with votes corrected from the
 resected position (a biased inlier set from a wrong position misleads it).
+
+Calibration (measured, not changed in session 3): over the reliable θ2 of the
+held-out scenarios ``factorloc simulate --world apartment --queries 300 --seed
+11`` / ``--seed 23`` (kidnapped queries left out), NEES (1 dof) 0.90 / 0.47,
+θ3's 0.69 / 0.73; on ``--seed 7`` 0.58. Each looks ~1.3× cautious, but θ2 and θ3
+see the same images from the same position hypothesis and their normalized
+errors correlate at 0.88 / 0.92 on the queries where both are reliable: fused
+as independent (as the fusion does), the pair's heading NEES is already 1.58 /
+1.35. Shrinking either σ would make the pair overconfident, so it is left.
 """
 
 from __future__ import annotations

@@ -43,6 +43,11 @@ growing with the displacement; the reported ``scale`` is then the residual
 scale times the warp's magnification (``scale_residual`` holds the former).
 Without a position hypothesis the query is assumed within
 ``unknown_position_sigma_m`` of the reference and σ covers that parallax.
+
+Calibration (measured, left as is): θ3's NEES (1 dof) over its reliable estimates is 0.69 / 0.73 on the held-out
+scenarios ``factorloc simulate --world apartment --queries 300 --seed 11`` / ``--seed 23``, but its errors
+correlate with θ2's at 0.88 / 0.92 (same images, same position hypothesis) and the pair fused as independent has
+NEES 1.58 / 1.35; see :mod:`factorloc.estimators.compass`.
 """
 
 from __future__ import annotations
