@@ -12,11 +12,14 @@ Three kinds of gate:
   patent's fusion, the test is per axis group: positions are tested against
   positions (2 degrees of freedom), headings against headings (1), so a
   full-pose estimate can lose its position and keep its heading.
-- **seed audit** (beyond the patent): a later step whose own data had enough
-  support but fit nowhere near the seed it was given, and found nothing
-  reliable elsewhere, contradicts that seed (:func:`seed_audit`). The
-  odometry of a kidnapped robot is the case: it cannot know it was moved,
-  and without the audit it is fused as reliable while metres wrong.
+- **seed audit** (beyond the patent): a later step whose own data refute
+  the seed it was given (the ICP step: its seeded alignment puts the scan
+  into space the reference saw empty, or fits nowhere near it while the
+  global search finds nothing reliable either) contradicts that seed
+  (:func:`seed_audit`). The odometry of a
+  kidnapped robot is the case: it cannot know it was moved, and without
+  the audit it is fused as reliable while metres wrong. The step decides
+  (``diagnostics["seed_misfit"]``); the audit only reads it.
 """
 
 from __future__ import annotations
@@ -256,31 +259,29 @@ SEED_MISFIT = "seed_misfit"
 def seed_misfit(estimate: Estimate) -> str:
     """Why ``estimate``'s own data contradict the seed it was given ("" when they do not).
 
-    A step reports it in ``diagnostics["seed_misfit"]`` (a non-empty reason;
-    present but empty: the step checked and its data do not contradict the
-    seed). Without that key, the ICP step's diagnostics are read: an ICP that was
-    ``seeded`` yet fell back to its global search (``used_global_init``) had a
-    seeded alignment that failed for a reason other than degenerate geometry
-    (a degenerate seeded fit does not search elsewhere: the scan is the same),
-    i.e. the scan — at least ``min_inliers`` points — did not fit around the
-    seed; if the global search found nothing reliable either, the seed is
-    the suspect. An estimate that reliably measures a position of its own
-    contradicts nothing here (the consistency gate weighs it against the
-    seed); a reliable heading-only one may still report a misfit.
+    The step decides and reports it in ``diagnostics["seed_misfit"]`` (a
+    non-empty reason; empty: the step checked and its data do not
+    contradict the seed); without the key, nothing is contradicted. The
+    ICP step reports a misfit when its *seeded* alignment puts more than
+    ``max_violation`` of either scan into space the other sensor saw empty
+    or when its seeded alignment failed and its global search found nothing
+    reliable (:func:`factorloc.estimators.icp.estimate`). An estimate that reliably
+    measures a position of its own contradicts nothing here (the
+    consistency gate weighs it against the seed); a reliable heading-only
+    one may still report a misfit.
+
+    There used to be a second source, inferred here from the ICP
+    diagnostics (a seeded ICP that fell back to its global search and found
+    nothing reliable); it disagreed with the ICP's own verdict where the
+    step had judged the seed free-space consistent. The ICP step now makes
+    that inference itself (:func:`factorloc.estimators.icp._seed_misfit`),
+    with its measured trade-off.
     """
     d = estimate.diagnostics
     if estimate.reliable and estimate.measures(Component.X):
         return ""
-    if SEED_MISFIT in d:  # the step judged it itself ("" or None: its data do not contradict the seed)
-        reason = d[SEED_MISFIT]
-        return f"{estimate.step}: {reason}" if reason else ""
-    if estimate.reliable:
-        return ""
-    if d.get("seeded") and d.get("used_global_init"):
-        n = d.get("n_query_points")
-        pts = f"{int(n)} query points" if isinstance(n, (int, float)) and math.isfinite(n) else "the query data"
-        return f"{estimate.step}: {pts} fit nowhere near the seed (seeded alignment failed, global search unreliable)"
-    return ""
+    reason = d.get(SEED_MISFIT)
+    return f"{estimate.step}: {reason}" if reason else ""
 
 
 def seed_audit(estimates: Sequence[Estimate]) -> dict[int, str]:

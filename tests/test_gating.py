@@ -68,8 +68,16 @@ def test_consistent_estimates_all_pass() -> None:
     assert passed >= 195  # false rejections at the 0.1 % level per test, a few rounds
 
 
-def _icp_misfit(x: float, y: float, *, seeded: bool = True, used_global: bool = True, reliable: bool = False) -> Estimate:
-    """An ICP estimate as the ICP step reports a seeded alignment that failed and a global search that found nothing sure."""
+def _icp_misfit(
+    x: float, y: float, *, seeded: bool = True, used_global: bool = True, reliable: bool = False, misfit: str | None = None
+) -> Estimate:
+    """An ICP estimate as the ICP step reports a seeded alignment that failed and a global search that found nothing sure.
+
+    ``misfit``: the step's own ``seed_misfit`` verdict (None: the key absent, the step did not check).
+    """
+    diagnostics = {"seeded": seeded, "used_global_init": used_global, "n_query_points": 360}
+    if misfit is not None:
+        diagnostics["seed_misfit"] = misfit
     return Estimate.pose(
         "icp",
         Pose2(x, y, 0.3),
@@ -78,15 +86,16 @@ def _icp_misfit(x: float, y: float, *, seeded: bool = True, used_global: bool = 
         0.003,
         reliable=reliable,
         reason="ambiguous: a distinct solution scores 0.39 vs 0.43 (global initialization, widened)",
-        diagnostics={"seeded": seeded, "used_global_init": used_global, "n_query_points": 360},
+        diagnostics=diagnostics,
     )
 
 
 def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() -> None:
     odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
     compass = Estimate.heading("compass", 1.2, 0.1, reliable=False, reason="2 inlier pairs < 8")
-    contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9)])
-    assert list(contradicted) == [0] and "360 query points fit nowhere near the seed" in contradicted[0]
+    violated = "seeded alignment puts 31 % of the scan in space the reference saw empty > 12 %"
+    contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9, misfit=violated)])
+    assert contradicted == {0: f"seed contradicted by icp: {violated}"}
     # an explicit reason from the step is used as given
     told = Estimate.heading("icp", 0.0, 0.1, reliable=False, diagnostics={"seed_misfit": "fitness 0.02 at the seed"})
     assert seed_audit([odo, told]) == {0: "seed contradicted by icp: fitness 0.02 at the seed"}
@@ -103,15 +112,18 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
     odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
+    violated = "seeded alignment puts 31 % of the scan in space the reference saw empty > 12 %"
+    # a seeded fit that failed and a global search that found nothing sure, but the step checked its seed and found
+    # it free-space consistent (or did not check): nothing refutes the seed — no second guess from the diagnostics
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9, misfit="")]) == {}
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9)]) == {}
     # a degenerate seeded fit does not search globally: it says nothing against the seed
     assert seed_audit([odo, _icp_misfit(3.0, 0.9, used_global=False)]) == {}
-    # a blind ICP was given no seed
-    assert seed_audit([odo, _icp_misfit(1.3, 1.9, seeded=False)]) == {}
     # a reliable ICP is weighed against the seed by the consistency gate instead
-    assert seed_audit([odo, _icp_misfit(1.3, 1.9, reliable=True)]) == {}
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9, reliable=True, misfit=violated)]) == {}
     # no reliable position seed before it: nothing to contradict
     unreliable_odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.6, 0.6, 0.5, reliable=False)
-    assert seed_audit([unreliable_odo, _icp_misfit(1.3, 1.9)]) == {}
+    assert seed_audit([unreliable_odo, _icp_misfit(1.3, 1.9, misfit=violated)]) == {}
 
 
 def _along_a_diagonal_wall(x: float, y: float, sigma_across_m: float = 0.01) -> Estimate:

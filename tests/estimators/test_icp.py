@@ -16,6 +16,7 @@ from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.estimators.icp import IcpConfig, IcpStep, estimate, prepare_reference, query_points
 from factorloc.estimators.odometry import OdometryStep
+from factorloc.gating import seed_audit
 from factorloc.geometry import Pose2
 from factorloc.sim import DepthCamera, apartment, render_cloud, render_cloud_360
 from factorloc.types import Estimate, Odometry, Query, Reference, Scan, StepStatus
@@ -136,8 +137,21 @@ def test_a_distant_global_solution_does_not_overturn_a_free_space_consistent_see
         assert not est.reliable
         assert est.diagnostics["used_global_init"]
         assert est.diagnostics["seeded_violation"] <= 0.12
-        assert "seed_misfit" not in est.diagnostics
         assert _errors(case, est)[0] > 0.3  # the global solution was wrong
+        # not refuted, but not confirmed either: the step itself reports it, and the pipeline's seed audit reads
+        # exactly that (one source) — neither the seed nor the global solution is fused
+        assert "fit nowhere near the seed" in est.diagnostics["seed_misfit"]
+        odo = Estimate.pose("odometry", case.truth, 0.05, 0.05, math.radians(2))
+        assert seed_audit([odo, est]) == {0: f"seed contradicted by icp: {est.diagnostics['seed_misfit']}"}
+
+
+def test_a_seeded_icp_reports_its_seed_audit_verdict_itself(seeded_results) -> None:
+    # the seed audit's one source: every seeded estimate carries "seed_misfit", empty unless its scan refutes the seed
+    for _, est in seeded_results:
+        misfit = est.diagnostics["seed_misfit"]
+        refuted = est.diagnostics["seeded_violation"] > 0.12 or (est.diagnostics["used_global_init"] and not est.reliable)
+        assert bool(misfit) == refuted
+    assert sum(not e.diagnostics["seed_misfit"] for _, e in seeded_results) >= 0.5 * len(seeded_results)
 
 
 def test_unreliable_estimates_say_why(seeded_results) -> None:
