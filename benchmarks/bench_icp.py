@@ -22,7 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from factorloc.datasets.rosbag import read_laser_log
-from factorloc.evaluation.relations import format_table, read_relations, relations_benchmark, summarize
+from factorloc.evaluation.relations import (
+    format_table,
+    read_relations,
+    relations_benchmark,
+    summarize,
+    unrecovered_breakdown,
+)
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
 
@@ -257,8 +263,13 @@ def main() -> None:
             f"{name}: local relations, time per pair against our whole ICP step (prepare + estimate, timed again in "
             f"turn with Open3D, fastest of 3), median of the per-pair ratios: (a) Open3D registration_icp bare / ours "
             f"= {bare:.2f}, (b) Open3D's per-pair job (clouds from arrays, normals, registration_icp, information "
-            f"matrix) / ours = {job:.2f}\n"
+            f"matrix) / ours = {job:.2f}"
         )
+        for subset in ("loop", "local"):
+            b = unrecovered_breakdown(results, subset)
+            rest = ", ".join(f"{k} {v}" for k, v in sorted(b.items(), key=lambda kv: -kv[1]) if k not in ("n", "recovered"))
+            print(f"{name} {subset}: {b['recovered']}/{b['n']} recovered; not recovered: {rest}")
+        print()
     if args.sim:
         cal = sim_calibration(args.sim)
         print("simulated seeded queries (apartment, single 58° depth view within 2 m of a 360° reference):")

@@ -65,6 +65,7 @@ __all__ = [
     "read_relations",
     "relations_benchmark",
     "summarize",
+    "unrecovered_breakdown",
 ]
 
 METHODS = ("ours", "ours_icp", "odometry", "open3d_p2p", "open3d_p2plane")
@@ -424,6 +425,71 @@ def summarize(results: Sequence[RelationResult], dataset: str = "") -> list[dict
                 }
             )
     return rows
+
+
+_RULES = (
+    ("ambiguous", "ambiguous"),
+    ("degenerate", "degenerate geometry"),
+    ("free space", "seen-free space"),
+    ("score", "score (fitness"),
+    ("fitness", "fitness "),
+    ("σ", "σ"),
+    ("rmse", "rmse "),
+    ("chamfer", "chamfer "),
+    ("seed inconsistent", "inconsistent with the"),
+    ("contradicts seed", "contradicts the"),
+)
+
+
+def _first_rule(reason: str) -> str:
+    """The rule named first in an ICP verdict's reason (its checks are listed in order), or "other"."""
+    hits = [(reason.find(key), name) for name, key in _RULES if key in reason]
+    return min(hits)[1] if hits else "other"
+
+
+def unrecovered_breakdown(
+    results: Sequence[RelationResult], subset: str = "loop", tolerance: tuple[float, float] = (0.1, 1.0)
+) -> dict[str, int]:
+    """Why ``ours`` did not recover the relations of ``subset`` (``"local"``, ``"loop"`` or ``"all"``).
+
+    A relation is recovered when the fused pose is within ``tolerance`` (m, deg; the table's 10 cm and 1°).
+    Each unrecovered one is counted under one key:
+
+    * ``icp_correct_rejected: <rule>`` — the ICP step's own pose was within the tolerance but it called it
+      unreliable; ``<rule>`` is the first test its reason names (ambiguous, degenerate, free space, score,
+      fitness, σ, …);
+    * ``icp_correct_gated`` — the ICP pose was within the tolerance and reliable, yet not what the pipeline
+      returned (the consistency gate or the seed audit);
+    * ``icp_wrong_flagged`` — the ICP pose was off and the result is unreliable (flagged, as it should be);
+    * ``not_flagged_near`` — reliable and off, but within 15 cm and 2.5° (e.g. a loop closure 1.1° off);
+    * ``not_flagged_wrong`` — reliable and farther off.
+
+    Plus ``n`` (relations of the subset) and ``recovered``.
+    """
+    out: dict[str, int] = {"n": 0, "recovered": 0}
+    for r in results:
+        if r.method != "ours" or (subset != "all" and r.kind != subset):
+            continue
+        out["n"] += 1
+        if r.error_translation_m < tolerance[0] and r.error_rotation_deg < tolerance[1]:
+            out["recovered"] += 1
+            continue
+        d = r.diagnostics
+        icp_ok = (
+            d.get("icp_error_translation_m", math.inf) < tolerance[0] and d.get("icp_error_rotation_deg", math.inf) < tolerance[1]
+        )
+        if icp_ok and not d.get("icp_reliable", False):
+            key = f"icp_correct_rejected: {_first_rule(str(d.get('icp_reason', '')))}"
+        elif icp_ok:
+            key = "icp_correct_gated"
+        elif not r.reliable:
+            key = "icp_wrong_flagged"
+        elif r.error_translation_m < 0.15 and r.error_rotation_deg < 2.5:
+            key = "not_flagged_near"
+        else:
+            key = "not_flagged_wrong"
+        out[key] = out.get(key, 0) + 1
+    return out
 
 
 def format_table(rows: Sequence[dict[str, Any]]) -> str:

@@ -16,12 +16,14 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.estimators.icp import IcpConfig, IcpReference, estimate
 from factorloc.evaluation.relations import (
     METHODS,
+    RelationResult,
     Relations,
     format_table,
     read_relations,
     relations_benchmark,
     relations_config,
     summarize,
+    unrecovered_breakdown,
 )
 from factorloc.geometry import Pose2
 
@@ -211,3 +213,40 @@ def test_relations_config_changes_only_the_odometry_limits() -> None:
     cfg, base = relations_config(), Config()
     assert cfg.icp == base.icp and cfg.icp.bias_rmse_ratio == 0.75
     assert (cfg.odometry.max_sigma_position_m, cfg.odometry.max_sigma_heading_rad) == (1.0, 0.55)
+
+
+def test_unrecovered_breakdown_names_why_each_relation_was_missed() -> None:
+    def res(et: float, er: float, reliable: bool, icp_et: float, icp_er: float, icp_reliable: bool, reason: str, kind="loop"):
+        diag = {
+            "icp_error_translation_m": icp_et,
+            "icp_error_rotation_deg": icp_er,
+            "icp_reliable": icp_reliable,
+            "icp_reason": reason,
+        }
+        return RelationResult("ours", 0, kind, et, er, reliable, False, 0.0, diagnostics=diag)
+
+    results = [
+        res(0.02, 0.3, True, 0.02, 0.3, True, "fitness 0.8"),  # recovered
+        # ICP right but unreliable: the first test its reason names counts
+        res(13.0, 30.0, False, 0.01, 0.4, False, "ambiguous: a distinct solution scores 0.70 vs 0.76 (global init)"),
+        res(13.0, 30.0, False, 0.03, 0.2, False, "degenerate geometry: constraint 0.017 < 0.030; score (fitness − v…"),
+        res(9.0, 90.0, False, 0.01, 0.2, False, "score (fitness − violation) 0.39 < 0.40 (global initialization)"),
+        res(0.3, 5.0, True, 0.02, 0.2, True, "fitness 0.9"),  # right and reliable, not returned: gated
+        res(4.0, 89.0, False, 4.0, 89.0, False, "ambiguous"),  # wrong, flagged
+        res(0.03, 1.2, True, 0.03, 1.2, True, "fitness 0.5"),  # reliable, 1.2° off: near
+        res(1.78, 179.8, True, 1.78, 179.8, True, "fitness 0.61"),  # reliable 180° flip: wrong
+        res(0.5, 3.0, False, 0.5, 3.0, False, "score", kind="local"),  # another subset
+    ]
+    b = unrecovered_breakdown(results, "loop")
+    assert b == {
+        "n": 8,
+        "recovered": 1,
+        "icp_correct_rejected: ambiguous": 1,
+        "icp_correct_rejected: degenerate": 1,
+        "icp_correct_rejected: score": 1,
+        "icp_correct_gated": 1,
+        "icp_wrong_flagged": 1,
+        "not_flagged_near": 1,
+        "not_flagged_wrong": 1,
+    }
+    assert unrecovered_breakdown(results, "all")["n"] == 9
