@@ -49,7 +49,6 @@ from factorloc.registration.nn import (
     build_grid,
     grid_nearest,
     grid_nearest2,
-    nearest_within,
 )
 from factorloc.registration.scan2d import pca_normals
 
@@ -181,19 +180,17 @@ def _pack_target(
 
 
 @njit(cache=True)
-def _prepare_core(pts: np.ndarray, d: np.ndarray, idx: np.ndarray, radius_m: float, cell_m: float, max_cells: int) -> tuple:
-    """:func:`prepare_target`'s work after the neighbour search (``d``, ``idx``: N×k, nearest first) in one compiled
-    call: the PCA line normals and their quality (:func:`~factorloc.registration.scan2d.pca_normals`), the
-    ranges, and :func:`_pack_target`'s derived arrays and grid."""
+def _prepare_core(
+    pts: np.ndarray, normals: np.ndarray, quality: np.ndarray, cell_m: float, max_cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`prepare_target`'s work after the normals in one compiled call: the ranges and :func:`_pack_target`'s
+    derived arrays and grid."""
     m = pts.shape[0]
-    normals = np.empty((m, 2))
-    quality = np.empty(m)
-    pca_normals(pts, d, idx, radius_m, normals, quality)
     ranges = np.empty(m)
     for i in range(m):
         ranges[i] = math.hypot(pts[i, 0], pts[i, 1])
     n_ext, c_ext, r2, packed, order, start, geo = _pack_target(pts, normals, quality, ranges, cell_m, max_cells)
-    return normals, quality, ranges, n_ext, c_ext, r2, packed, order, start, geo
+    return ranges, n_ext, c_ext, r2, packed, order, start, geo
 
 
 @dataclass(frozen=True, eq=False)
@@ -266,9 +263,9 @@ class PreparedScan:
 
 
 def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> PreparedScan:
-    """Build the PCA line normals and search grid of a target scan (once per reference): the normals'
-    neighbours (:func:`~factorloc.registration.nn.nearest_within`: the KD-tree's, searched on a grid), then one
-    compiled pass (:func:`_prepare_core`). The KD-tree is built on its first query.
+    """Build the KD-tree, PCA line normals and search grid of a target scan (once per reference): one batched
+    k-nearest-neighbour search of the tree, the compiled PCA (:func:`~factorloc.registration.scan2d.pca_normals`),
+    then one compiled pass for the rest (:func:`_prepare_core`).
 
     Raises :class:`~factorloc.errors.InputError` on fewer than 3 points, non-finite points or coordinates
     beyond :data:`MAX_COORDINATE_M`.
@@ -281,9 +278,12 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
     _check_coordinates("target points_m", pts)
     if pts is points_m and pts.flags.writeable:
         pts = pts.copy()  # the caller's array stays writable; ours is frozen
-    tree = KdTree2D(pts)  # built on its first query: for the few ties of nearest_within, or by a caller
-    d, idx = nearest_within(pts, params.normal_k, params.normal_radius_m, tree)
-    out = _prepare_core(pts, d, idx, float(params.normal_radius_m), GRID_CELL_M, GRID_MAX_CELLS)
+    tree = KdTree2D(pts)
+    m = len(pts)
+    kk = min(params.normal_k, m)
+    d, idx = tree.nearest_lifted(tree.lifted, kk)
+    normals, quality = pca_normals(pts, d.reshape(m, kk), idx.reshape(m, kk), float(params.normal_radius_m))
+    out = (normals, quality) + _prepare_core(pts, normals, quality, GRID_CELL_M, GRID_MAX_CELLS)
     for a in (pts,) + out:
         a.setflags(write=False)
     normals, quality, ranges = out[:3]

@@ -12,13 +12,14 @@ loop's form: already-lifted queries, no bound, no copies (``batch_knn_search``
 returns arrays; ``batch_nearest_neighbor_search`` returns Python lists whose
 conversion cost as much as the search). Otherwise ``cKDTree`` is used; both
 are exact, so the results are the same (up to ties between equidistant neighbours).
-Those figures hold when the same scan is queried again and again; with a new
-scan per call (a reference per relation) a tree and its k = 7 query cost
-~70–85 µs on this machine. The target's normals
-(:func:`~factorloc.registration.scan2d.estimate_normals_2d`) therefore take
-their neighbours from :func:`nearest_within`: a compiled search of the uniform
-grid below, and the tree only for the points whose neighbour set a tie
-decides (~0.8 points per laser scan), so the neighbours are the tree's.
+The tree serves the target's normals (:func:`~factorloc.registration.scan2d.estimate_normals_2d`),
+built on its first query. (Those figures hold when the same scan is queried
+again and again; with a new scan per call, a reference per relation, a tree and
+its k = 7 query cost ~70–85 µs on this machine. A compiled search of the grid
+below is ~25 µs cheaper there, but laser scans have many equidistant
+neighbours, ~28 points per scan, whose order the tree picks: the normals'
+sums then differ in the last bit, and Open3D's diverging runs on the loop
+relations, fed these normals, change. So the tree stays.)
 
 The compiled ICP core (:func:`factorloc.registration.icp2d.align`) searches a
 uniform grid instead (:func:`build_grid`, :func:`grid_nearest`,
@@ -51,10 +52,8 @@ __all__ = [
     "KdTree2D",
     "build_grid",
     "fast_backend",
-    "grid_knn_radius",
     "grid_nearest",
     "lift_2d",
-    "nearest_within",
 ]
 
 
@@ -386,123 +385,3 @@ def grid_nearest2(
     if bk < 0:
         return math.inf, -1, bound2
     return best, bk, second
-
-
-@njit(cache=True)
-def grid_knn_radius(
-    pts: np.ndarray, k: int, radius_m: float, cell_m: float, max_cells: int, rel_tol: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The (at most) ``k`` nearest neighbours closer than ``radius_m`` of each of the M points ``pts`` among
-    themselves (itself included), exact, on a uniform grid searched ring by ring.
-
-    Returns ``idx`` (M, k) int64 (-1 past the last neighbour), ``d`` (M, k) distances (m, increasing; ``inf``
-    past the last), ``count`` (M,) and ``ambiguous`` (M,) bool: the neighbour set is not decided by the
-    distances alone — the k-th and the (k+1)-th nearest lie within ``rel_tol`` (relative, squared distances) of
-    each other (a tie: two exact searches may keep either), or a neighbour lies within ``rel_tol`` of the
-    radius (rounding decides whether it counts). Elsewhere the set is the one of any exact search; its order
-    is by distance (equidistant neighbours in the grid's order).
-    """
-    m = pts.shape[0]
-    kk = min(k, m)
-    kmax = min(k + 1, m)  # one more, to see a tie at the k-th distance
-    x = pts[:, 0].copy()
-    y = pts[:, 1].copy()
-    order, start, geo = build_grid(x, y, cell_m, max_cells)
-    x0, y0, h, slack, inv_h = geo[0], geo[1], geo[2], geo[5], geo[6]
-    gx, gy = int(geo[3]), int(geo[4])
-    gp = np.empty((m, 2))
-    for r in range(m):
-        gp[r, 0], gp[r, 1] = x[order[r]], y[order[r]]
-    r2 = radius_m * radius_m if radius_m > 0.0 else 0.0
-    bound2 = r2 * (1.0 + rel_tol)
-    max_ring = int(math.ceil(radius_m / h)) + 1 if radius_m > 0.0 else 0
-    idx = np.full((m, max(kk, 1)), -1, np.int64)
-    d = np.full((m, max(kk, 1)), np.inf)
-    count = np.zeros(m, np.int64)
-    ambiguous = np.zeros(m, np.bool_)
-    bd = np.empty(max(kmax, 1))
-    bk = np.empty(max(kmax, 1), np.int64)
-    for i in range(m):
-        qx, qy = x[i], y[i]
-        cx = min(max(int((qx - x0) * inv_h), 0), gx - 1)
-        cy = min(max(int((qy - y0) * inv_h), 0), gy - 1)
-        cnt = 0
-        for ring in range(max_ring + 1):
-            if ring >= 2:
-                # every cell of this ring lies at least ring − 1 cells away from the query's cell
-                gap = max((ring - 1) * h - slack, 0.0)
-                if gap * gap >= (bd[kmax - 1] if cnt == kmax else bound2):
-                    break
-            for ix in range(max(cx - ring, 0), min(cx + ring, gx - 1) + 1):
-                edge_x = ix == cx - ring or ix == cx + ring
-                step = 1 if edge_x else 2 * ring
-                iy = cy - ring
-                while iy <= cy + ring:
-                    if 0 <= iy < gy:
-                        ex = max(x0 + ix * h - qx, qx - (x0 + (ix + 1) * h), 0.0)
-                        ex = max(ex - slack, 0.0)
-                        ey = max(y0 + iy * h - qy, qy - (y0 + (iy + 1) * h), 0.0)
-                        ey = max(ey - slack, 0.0)
-                        worst = bd[kmax - 1] if cnt == kmax else bound2
-                        if ex * ex + ey * ey < worst:
-                            c = ix * gy + iy
-                            for p in range(start[c], start[c + 1]):
-                                dx = gp[p, 0] - qx
-                                dy = gp[p, 1] - qy
-                                d2 = dx * dx + dy * dy
-                                if d2 >= bound2 or (cnt == kmax and d2 >= bd[kmax - 1]):
-                                    continue
-                                j = cnt if cnt < kmax else kmax - 1
-                                while j > 0 and bd[j - 1] > d2:
-                                    bd[j] = bd[j - 1]
-                                    bk[j] = bk[j - 1]
-                                    j -= 1
-                                bd[j] = d2
-                                bk[j] = p
-                                if cnt < kmax:
-                                    cnt += 1
-                    iy += step if ring > 0 else 1
-        amb = False
-        for j in range(cnt):
-            if abs(bd[j] - r2) <= rel_tol * r2:
-                amb = True
-        if 1 <= kk < cnt and bd[kk] - bd[kk - 1] <= rel_tol * bd[kk]:
-            amb = True
-        ambiguous[i] = amb
-        n_in = 0
-        for j in range(min(cnt, kk)):
-            if bd[j] < r2:
-                idx[i, n_in] = order[bk[j]]
-                d[i, n_in] = math.sqrt(bd[j])
-                n_in += 1
-        count[i] = n_in
-    return idx, d, count, ambiguous
-
-
-KNN_REL_TOL = 1e-9
-"""Relative tolerance on squared distances under which :func:`nearest_within` calls a neighbour set ambiguous."""
-
-
-def nearest_within(points_m: np.ndarray, k: int, radius_m: float, tree: KdTree2D | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The ``min(k, M)`` nearest neighbours of each of the M points (M×2 float64, finite, C-contiguous) among
-    themselves, masked to those closer than ``radius_m``: ``(d, idx)``, (M, min(k, M)), nearest first; a slot
-    past the last neighbour closer than the radius has ``d`` ≥ ``radius_m`` (``inf`` or the farther point's
-    distance) and must be ignored.
-
-    Searched compiled on a grid (:func:`grid_knn_radius`, cell :data:`GRID_CELL_M`); the points whose
-    neighbour set the distances do not decide (a tie at the k-th distance, a neighbour at the radius to
-    rounding) take the KD-tree's answer (``tree``, or a :class:`KdTree2D` built for them), so that the result
-    is the KD-tree's own (ties included) whichever search ran.
-    """
-    m = len(points_m)
-    kk = min(int(k), m)
-    if kk < 1:
-        return np.full((m, 1), np.inf), np.zeros((m, 1), np.int64)
-    idx, d, _, ambiguous = grid_knn_radius(points_m, kk, float(radius_m), GRID_CELL_M, GRID_MAX_CELLS, KNN_REL_TOL)
-    if ambiguous.any():
-        sel = np.flatnonzero(ambiguous)
-        tree = KdTree2D(points_m) if tree is None else tree
-        d_t, i_t = tree.nearest_lifted(lift_2d(points_m[sel]), kk)
-        d[sel] = d_t.reshape(len(sel), kk)
-        idx[sel] = i_t.reshape(len(sel), kk)
-    return d, idx

@@ -14,7 +14,7 @@ import numpy as np
 from numba import njit
 
 from factorloc.errors import InputError
-from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, nearest_within
+from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, lift_2d
 from factorloc.types import PointCloud, Scan
 
 __all__ = [
@@ -139,9 +139,8 @@ def estimate_normals_2d(
     perfectly straight); points with fewer than 3 neighbours get quality 0
     and a normal pointing at the sensor.
 
-    The neighbours are the exact ones of a KD-tree (:func:`~factorloc.registration.nn.nearest_within`: a
-    compiled grid search, the KD-tree ``tree`` — a :class:`~factorloc.registration.nn.KdTree2D` on
-    ``points_m``, built when needed and not given — only for ties); the PCA runs compiled (:func:`pca_normals`).
+    The neighbours come from ``tree`` (a :class:`~factorloc.registration.nn.KdTree2D` on ``points_m``, built
+    when not given); the PCA runs compiled (:func:`pca_normals`).
 
     Returns
     -------
@@ -156,68 +155,136 @@ def estimate_normals_2d(
         return np.zeros((0, 2)), np.zeros(0)
     if not np.isfinite(pts).all():
         raise InputError("points_m contains NaN or infinite values")
-    d, idx = nearest_within(pts, k, max_radius_m, tree)
+    if tree is None:
+        tree = KdTree2D(pts)
+        lifted = tree.lifted
+    else:
+        lifted = lift_2d(pts)
+    kk = min(k, n)
+    d, idx = tree.nearest_lifted(lifted, kk)
+    return pca_normals(pts, d.reshape(n, kk), idx.reshape(n, kk), float(max_radius_m))
+
+
+def pca_normals(pts: np.ndarray, d: np.ndarray, idx: np.ndarray, max_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """The PCA of :func:`estimate_normals_2d`: ``pts`` (N×2 float64), ``d``/``idx`` (N×k) the distances and
+    indices of each point's k nearest neighbours (itself included), nearest first; returns (normals, quality).
+
+    Per point, over its neighbours closer than ``max_radius_m``, relative to the point (no cancellation): the
+    scatter ``S = Σ u uᵀ − (Σ u)(Σ u)ᵀ / n``, its eigenvalues ``(sxx + syy)/2 ± √(((sxx − syy)/2)² + sxy²)``
+    and the line's direction ``φ = ½ atan2(2 sxy, sxx − syy)``; the normal ``(−sin φ, cos φ)`` faces the sensor
+    at the origin.
+
+    For k = 7 (``IcpParams.normal_k``'s default) the sums run compiled (:func:`_pca_sums`, :func:`_pca_finish`)
+    in the order numpy's ``matmul``/``einsum`` add them on this platform, and ``φ`` comes from ``numpy.arctan2``,
+    so that the normals are bit for bit those of the plain numpy form (:func:`_pca_numpy`, used for other k);
+    ``tests/registration/test_scan2d.py`` checks it.
+    """
+    n, kk = d.shape
     normals = np.empty((n, 2))
     quality = np.empty(n)
-    pca_normals(pts, d, idx, float(max_radius_m), normals, quality)
+    if kk != 7:
+        return _pca_numpy(pts, d, idx, max_radius_m)
+    sums = np.empty((6, n))  # cnt, sxx, syy, sxy, half_diff, root
+    _pca_sums(pts, d, idx, max_radius_m, sums)
+    phi = np.arctan2(sums[3], sums[4])
+    phi *= 0.5
+    _pca_finish(pts, sums, phi, normals, quality)
+    return normals, quality
+
+
+def _pca_numpy(pts: np.ndarray, d: np.ndarray, idx: np.ndarray, max_radius_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`pca_normals` in plain numpy (vectorized over the points)."""
+    n, kk = d.shape
+    vf = (d < max_radius_m).astype(np.float64)
+    x, y = pts[:, 0], pts[:, 1]
+    ux = x.take(idx)
+    ux -= x[:, None]
+    ux *= vf
+    uy = y.take(idx)
+    uy -= y[:, None]
+    uy *= vf
+    ones = np.ones(kk)
+    cnt = vf @ ones
+    sx, sy = ux @ ones, uy @ ones
+    inv = 1.0 / np.maximum(cnt, 1.0)
+    sxx = np.einsum("ij,ij->i", ux, ux) - sx * sx * inv
+    syy = np.einsum("ij,ij->i", uy, uy) - sy * sy * inv
+    sxy = np.einsum("ij,ij->i", ux, uy) - sx * sy * inv
+    half_diff = 0.5 * (sxx - syy)
+    root = np.sqrt(half_diff * half_diff + sxy * sxy)
+    mean = 0.5 * (sxx + syy)
+    lmax = mean + root
+    lmin = mean - root
+    phi = 0.5 * np.arctan2(sxy, half_diff)
+    normals = np.empty((n, 2))
+    np.sin(phi, out=normals[:, 0])
+    normals[:, 0] *= -1.0
+    np.cos(phi, out=normals[:, 1])
+    quality = lmin / np.maximum(lmax, 1e-300)
+    np.subtract(1.0, quality, out=quality)
+    quality *= lmax > 0.0  # all neighbours at one spot: no line
+    to_sensor = pts / -np.maximum(np.hypot(x, y), 1e-12)[:, None]
+    poor = cnt < 3.0
+    np.copyto(normals, to_sensor, where=poor[:, None])
+    quality[poor] = 0.0
+    normals *= np.where(np.einsum("ij,ij->i", normals, to_sensor) < 0.0, -1.0, 1.0)[:, None]  # face the sensor
+    np.maximum(quality, 0.0, out=quality)  # rounding: λmin may come out slightly negative
+    np.minimum(quality, 1.0, out=quality)
     return normals, quality
 
 
 @njit(cache=True)
-def pca_normals(
-    pts: np.ndarray, d: np.ndarray, idx: np.ndarray, max_radius_m: float, normals: np.ndarray, quality: np.ndarray
-) -> None:
-    """The PCA of :func:`estimate_normals_2d`, compiled, in place: ``pts`` (N×2), ``d``/``idx`` (N×k) the
-    distances and indices of each point's k nearest neighbours (itself included), nearest first.
-
-    Per point, over its neighbours closer than ``max_radius_m``, relative to the point (no cancellation):
-    the scatter ``S = Σ u uᵀ − (Σ u)(Σ u)ᵀ / n``, its eigenvalues ``(sxx + syy)/2 ± √(((sxx − syy)/2)² + sxy²)``
-    and the line's direction ``φ = ½ atan2(2 sxy, sxx − syy)`` (by half-angle formulas); the normal
-    ``(−sin φ, cos φ)`` faces the sensor at the origin.
-    """
-    n, kk = d.shape
+def _pca_sums(pts: np.ndarray, d: np.ndarray, idx: np.ndarray, max_radius_m: float, out: np.ndarray) -> None:
+    """:func:`_pca_numpy`'s sums for k = 7, in numpy's order: ``u @ ones(7)`` adds ``((u0 + u2) + (u1 + u3)) +
+    ((u4 + u5) + u6)`` (OpenBLAS's 4-lane dot product and its tail), ``einsum('ij,ij->i')`` two alternating
+    accumulators ``(p0 + p2 + p4 + p6) + (p1 + p3 + p5)``. Rows of ``out``: cnt, sxx, syy, sxy, half_diff, root."""
+    n = pts.shape[0]
+    ux = np.zeros(7)
+    uy = np.zeros(7)
     for i in range(n):
         x, y = pts[i, 0], pts[i, 1]
-        cnt = 0
-        sx = sy = sxx = syy = sxy = 0.0
-        for j in range(kk):
-            if not d[i, j] < max_radius_m:
-                continue
-            cnt += 1
-            ux = pts[idx[i, j], 0] - x
-            uy = pts[idx[i, j], 1] - y
-            sx += ux
-            sy += uy
-            sxx += ux * ux
-            syy += uy * uy
-            sxy += ux * uy
-        inv = 1.0 / max(float(cnt), 1.0)
-        sxx -= sx * sx * inv
-        syy -= sy * sy * inv
-        sxy -= sx * sy * inv
+        cnt = 0.0
+        for j in range(7):
+            if d[i, j] < max_radius_m:
+                cnt += 1.0
+                ux[j] = pts[idx[i, j], 0] - x
+                uy[j] = pts[idx[i, j], 1] - y
+            else:
+                ux[j] = 0.0
+                uy[j] = 0.0
+        sx = ((ux[0] + ux[2]) + (ux[1] + ux[3])) + ((ux[4] + ux[5]) + ux[6])
+        sy = ((uy[0] + uy[2]) + (uy[1] + uy[3])) + ((uy[4] + uy[5]) + uy[6])
+        exx = (ux[0] * ux[0] + ux[2] * ux[2] + ux[4] * ux[4] + ux[6] * ux[6]) + (ux[1] * ux[1] + ux[3] * ux[3] + ux[5] * ux[5])
+        eyy = (uy[0] * uy[0] + uy[2] * uy[2] + uy[4] * uy[4] + uy[6] * uy[6]) + (uy[1] * uy[1] + uy[3] * uy[3] + uy[5] * uy[5])
+        exy = (ux[0] * uy[0] + ux[2] * uy[2] + ux[4] * uy[4] + ux[6] * uy[6]) + (ux[1] * uy[1] + ux[3] * uy[3] + ux[5] * uy[5])
+        inv = 1.0 / max(cnt, 1.0)
+        sxx = exx - sx * sx * inv
+        syy = eyy - sy * sy * inv
+        sxy = exy - sx * sy * inv
         half_diff = 0.5 * (sxx - syy)
-        root = math.sqrt(half_diff * half_diff + sxy * sxy)
+        out[0, i] = cnt
+        out[1, i] = sxx
+        out[2, i] = syy
+        out[3, i] = sxy
+        out[4, i] = half_diff
+        out[5, i] = math.sqrt(half_diff * half_diff + sxy * sxy)
+
+
+@njit(cache=True)
+def _pca_finish(pts: np.ndarray, sums: np.ndarray, phi: np.ndarray, normals: np.ndarray, quality: np.ndarray) -> None:
+    """:func:`_pca_numpy` after ``φ``: the normals, their orientation and quality, per point."""
+    for i in range(pts.shape[0]):
+        x, y = pts[i, 0], pts[i, 1]
+        cnt, sxx, syy, root = sums[0, i], sums[1, i], sums[2, i], sums[5, i]
         mean = 0.5 * (sxx + syy)
         lmax = mean + root
         lmin = mean - root
         rng = max(math.hypot(x, y), 1e-12)
         tx, ty = x / -rng, y / -rng  # the unit vector towards the sensor
-        if cnt < 3:
+        if cnt < 3.0:
             nx, ny, q = tx, ty, 0.0
         else:
-            # (cos φ, sin φ) from (cos 2φ, sin 2φ) = (half_diff, sxy) / root without trigonometry: the larger of the
-            # two by its half-angle formula, the other as sin 2φ / (2 · it); φ ∈ (−π/2, π/2] as ½ atan2 gives it
-            if root > 0.0:
-                c2, s2 = half_diff / root, sxy / root
-                if c2 >= 0.0:
-                    cphi = math.sqrt(0.5 * (1.0 + c2))
-                    sphi = s2 / (2.0 * cphi)
-                else:
-                    sphi = math.copysign(math.sqrt(0.5 * (1.0 - c2)), sxy)
-                    cphi = s2 / (2.0 * sphi)
-            else:  # isotropic scatter: atan2(0, 0) = 0
-                cphi, sphi = 1.0, 0.0
-            nx, ny = -sphi, cphi
+            nx, ny = -math.sin(phi[i]), math.cos(phi[i])
             q = 1.0 - lmin / max(lmax, 1e-300) if lmax > 0.0 else 0.0  # all neighbours at one spot: no line
             q = min(max(q, 0.0), 1.0)  # rounding: λmin may come out slightly negative
         if nx * tx + ny * ty < 0.0:  # face the sensor

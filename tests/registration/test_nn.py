@@ -150,27 +150,3 @@ def test_grid_handles_duplicates_wide_scenes_and_absurd_queries() -> None:
         assert grid_nearest(x, y, packed, start, geo, 1.0) == (np.inf, -1)
     # the grid orders the points by cell: every point once
     assert sorted(order) == list(range(50))
-
-
-def test_nearest_within_returns_the_kd_trees_neighbours_ties_included() -> None:
-    """The grid search gives every point the same neighbour set as the KD-tree; where the set is decided by a
-    tie (a regular lattice: many points at the k-th distance) or by rounding at the radius, the tree's own."""
-    from factorloc.registration.nn import grid_knn_radius, nearest_within
-
-    rng = np.random.default_rng(4)
-    lattice = np.stack(np.meshgrid(np.arange(12) * 0.1, np.arange(9) * 0.1), axis=-1).reshape(-1, 2) + [2.0, -1.0]
-    arc = np.column_stack([np.cos(np.linspace(-1.5, 1.5, 181)), np.sin(np.linspace(-1.5, 1.5, 181))]) * 4.0
-    scenes = [rng.uniform(-5, 5, (300, 2)), lattice, arc, rng.uniform(-1, 1, (5, 2)), np.repeat(arc[:20], 2, axis=0)]
-    n_tied = 0
-    for pts in scenes:
-        pts = np.ascontiguousarray(pts)
-        for k, radius in ((7, 0.5), (3, 0.15), (12, 2.0)):
-            tree = KdTree2D(pts)
-            d, idx = nearest_within(pts, k, radius, tree)
-            kk = min(k, len(pts))
-            d0, i0 = tree.query(pts, k=kk)
-            d0, i0 = d0.reshape(len(pts), kk), i0.reshape(len(pts), kk)
-            for i in range(len(pts)):
-                assert set(idx[i][d[i] < radius].tolist()) == set(i0[i][d0[i] < radius].tolist())
-            n_tied += int(grid_knn_radius(pts, kk, radius, 0.5, 1 << 18, 1e-9)[3].sum())
-    assert n_tied > 50  # the lattice's ties went through the tree

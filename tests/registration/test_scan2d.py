@@ -243,3 +243,25 @@ def test_profile_and_violation_reject_nan_points() -> None:
         polar_profile(bad)
     with pytest.raises(InputError, match="NaN"):
         free_space_violation(np.full(720, 3.0), bad)
+
+
+def test_compiled_pca_reproduces_the_numpy_form() -> None:
+    """The compiled PCA of the k = 7 neighbourhoods (sums in numpy's order, φ from numpy's arctan2) gives the
+    normals and qualities of the plain numpy form, on random scenes, a noisy arc and a lattice (equidistant
+    neighbours), with all neighbours inside the radius and with some outside."""
+    from factorloc.registration.nn import KdTree2D
+    from factorloc.registration.scan2d import _pca_numpy, pca_normals
+
+    rng = np.random.default_rng(9)
+    arc = np.column_stack([np.cos(np.linspace(-1.5, 1.5, 181)), np.sin(np.linspace(-1.5, 1.5, 181))]) * 4.0
+    lattice = np.stack(np.meshgrid(np.arange(12) * 0.1, np.arange(9) * 0.1), axis=-1).reshape(-1, 2) + [2.0, -1.0]
+    for pts in (rng.uniform(-5, 5, (300, 2)), arc + rng.normal(0, 0.01, arc.shape), lattice, rng.uniform(-1, 1, (9, 2))):
+        pts = np.ascontiguousarray(pts)
+        d, idx = KdTree2D(pts).nearest_lifted(KdTree2D(pts).lifted, 7)
+        for radius in (0.5, 0.05):
+            n1, q1 = pca_normals(pts, d, idx, radius)
+            n0, q0 = _pca_numpy(pts, d, idx, radius)
+            np.testing.assert_allclose(n1, n0, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(q1, q0, rtol=0, atol=1e-12)
+    # (bit for bit on the development machine, whose OpenBLAS and numpy einsum orders the compiled sums emulate;
+    # another BLAS kernel may add the numpy form's terms in another order, hence the tolerance)
