@@ -36,16 +36,37 @@ def test_mahalanobis_of_one_heading_against_another() -> None:
     assert math.isclose(mahalanobis_sq(c, [d]), 4.5, rel_tol=1e-9)
 
 
-def test_kidnapped_odometry_loses_its_position_but_keeps_a_consistent_heading() -> None:
+def test_kidnapped_odometry_loses_its_heading_with_its_position() -> None:
     odo = Estimate.pose("odometry", Pose2(3.0, 0.5, math.radians(10.0)), 0.05, 0.05, math.radians(3.0))
     compass = Estimate.heading("compass", math.radians(12.0), math.radians(1.0))
     icp = Estimate.position("icp", 1.03, 0.48, 0.02, 0.02)
     verdicts = consistency_gate([odo, compass, icp], probability=0.999)
-    assert verdicts[0].accepted == (Component.THETA,) and "position inconsistent" in verdicts[0].reason
+    assert verdicts[0].accepted == () and "position inconsistent" in verdicts[0].reason
+    assert "heading dropped with its position" in verdicts[0].reason
     assert verdicts[0].mahalanobis_sq["position"] > chi2_threshold(0.999, 2)
     assert verdicts[1].fully_accepted and verdicts[2].fully_accepted
-    part = verdicts[0].accepted_estimate()
+    assert verdicts[0].accepted_estimate() is None
+    # tested per axis (the patent's view) the odometry keeps its consistent heading
+    per_axis = consistency_gate([odo, compass, icp], probability=0.999, full_pose_whole=False)
+    assert per_axis[0].accepted == (Component.THETA,)
+    part = per_axis[0].accepted_estimate()
     assert part is not None and part.kind == "heading"
+
+
+def test_a_kidnapped_odometry_and_the_compass_it_seeded_do_not_outvote_icp() -> None:
+    # the held-out scenario's case: odometry and the compass seeded by it agree on a heading 14° off;
+    # ICP's global solution has the right position and heading
+    odo = Estimate.pose("odometry", Pose2(3.0, 0.5, math.radians(24.0)), 0.05, 0.05, math.radians(3.0))
+    compass = Estimate.heading("compass", math.radians(24.5), math.radians(0.5))
+    icp = Estimate.pose("icp", Pose2(1.0, 0.5, math.radians(10.0)), 0.01, 0.01, math.radians(0.5))
+    verdicts = consistency_gate([odo, compass, icp], probability=0.999)
+    assert verdicts[0].accepted == ()
+    assert not verdicts[1].fully_accepted  # two headings left that disagree: the earlier step goes
+    assert verdicts[2].fully_accepted
+    # per axis, the two wrong headings outvote ICP's right one
+    per_axis = consistency_gate([odo, compass, icp], probability=0.999, full_pose_whole=False)
+    assert per_axis[2].accepted == (Component.X, Component.Y)
+    assert per_axis[1].fully_accepted
 
 
 def test_the_outlier_among_three_headings_is_rejected_not_the_good_ones() -> None:
@@ -146,7 +167,7 @@ def test_the_consistency_gate_tests_a_wall_estimate_only_across_the_wall() -> No
     off_across = Estimate.pose("odometry", Pose2(1.0 + 0.1, 0.0 - 0.1, 0.5), 0.03, 0.03, 0.05)  # 14 cm across: 4.7σ
     verdicts = consistency_gate([off_across, icp])
     assert verdicts[0].mahalanobis_sq["position"] > chi2_threshold(0.999, 2)
-    assert verdicts[0].accepted == (Component.THETA,)  # the earlier step loses its position on the tie
+    assert verdicts[0].accepted == ()  # the earlier step loses its position on the tie, and its heading with it
     assert verdicts[1].fully_accepted
 
 
