@@ -418,14 +418,28 @@ def _violations(
     return bad
 
 
+def _check_scan_and_profile(points: np.ndarray, profile: np.ndarray, name: str) -> None:
+    """InputError unless ``points`` is N×2 float64, finite, N ≥ 1 and ``profile`` a non-empty 1-D
+    float64 array (what the compiled free-space functions index without bounds checks)."""
+    if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 2):
+        raise InputError(f"{name} must be an N×2 float64 array, got {type(points).__name__} {np.shape(points)}")
+    if len(points) == 0 or not np.isfinite(points).all():
+        raise InputError(f"{name} must hold at least one point, all finite")
+    if not (isinstance(profile, np.ndarray) and profile.dtype == np.float64 and profile.ndim == 1 and len(profile) >= 1):
+        raise InputError(f"the profile of {name} must be a non-empty 1-D float64 array, got shape {np.shape(profile)}")
+
+
 def alignment_violation(profile_a: np.ndarray, points_a: np.ndarray, profile_b: np.ndarray, points_b: np.ndarray, T_a_b) -> float:
     """Free-space violation of an alignment, the larger of the two directions (one compiled call).
 
     ``points_b`` (scan b, its sensor frame) moved by ``T_a_b`` into a's frame against ``profile_a``, and
     ``points_a`` moved by ``T_a_b⁻¹`` into b's frame against ``profile_b`` (:func:`free_space_violation`,
-    default margins). The caller passes validated N×2 float64 C-contiguous arrays (N ≥ 1) and profiles from
-    :func:`polar_profile`; ``T_a_b`` is a :class:`~factorloc.geometry.Pose2`.
+    default margins): N×2 float64 arrays of finite points (N ≥ 1) and profiles from :func:`polar_profile`
+    (:class:`~factorloc.errors.InputError` otherwise, before the compiled code); ``T_a_b`` is a
+    :class:`~factorloc.geometry.Pose2`.
     """
+    _check_scan_and_profile(points_a, profile_a, "points_a")
+    _check_scan_and_profile(points_b, profile_b, "points_b")
     T_b_a = T_a_b.inverse()
     return _alignment_violation(
         profile_a,
@@ -468,6 +482,8 @@ def profile_and_violation(
 ) -> tuple[np.ndarray, float]:
     """Scan b's :func:`polar_profile` (720 bins, ``gap_free_m``, default gap width) and
     :func:`alignment_violation` of ``T_a_b`` with it, in one compiled call; the arrays as there."""
+    _check_scan_and_profile(points_a, profile_a, "points_a")
+    _check_scan_and_profile(points_b, profile_a, "points_b")
     T_b_a = T_a_b.inverse()
     n_bins = 720
     return _profile_and_violation(
@@ -528,6 +544,8 @@ def overlap_fitness(
     Returns ``(min(f_a, f_b), min(n_a, n_b))``, a direction without a visible point counting as (0, 0).
     Arrays as for :func:`alignment_violation`.
     """
+    _check_scan_and_profile(points_a, profile_a, "points_a")
+    _check_scan_and_profile(points_b, profile_b, "points_b")
     T_b_a = T_a_b.inverse()
     f1, n1, f2, n2 = _overlap_fitness(
         profile_a,

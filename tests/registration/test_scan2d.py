@@ -243,6 +243,18 @@ def test_profile_and_violation_reject_nan_points() -> None:
         polar_profile(bad)
     with pytest.raises(InputError, match="NaN"):
         free_space_violation(np.full(720, 3.0), bad)
+    from factorloc.geometry import Pose2
+    from factorloc.registration.scan2d import alignment_violation, overlap_fitness, profile_and_violation
+
+    good, prof = np.array([[1.0, 0.0], [2.0, 1.0], [2.0, 2.0]]), np.full(720, 3.0)
+    with pytest.raises(InputError, match="finite"):
+        alignment_violation(prof, good, prof, bad, Pose2())
+    with pytest.raises(InputError, match="finite"):
+        overlap_fitness(prof, bad, prof, good, Pose2(), 0.1)
+    with pytest.raises(InputError, match="finite"):
+        profile_and_violation(prof, good, bad, Pose2(), 2.0)
+    with pytest.raises(InputError, match="profile"):
+        alignment_violation(np.zeros(0), good, prof, good, Pose2())
 
 
 def test_compiled_pca_reproduces_the_numpy_form() -> None:
