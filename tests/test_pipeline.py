@@ -226,3 +226,26 @@ def test_a_single_wall_alone_leaves_the_position_undetermined() -> None:
     assert set(alone.undetermined) == {Component.X, Component.Y}
     assert np.isinf(alone.sigmas[:2]).all()
     assert abs(math.remainder(alone.pose.theta - truth.theta, 2 * math.pi)) < math.radians(0.2)
+
+
+def test_kidnapped_robot_whose_seeded_icp_fits_elsewhere_is_not_localized_confidently() -> None:
+    """q0406 of ``simulate --world apartment --queries 1000 --seed 43`` (held out): kidnapped, the odometry reliable
+    (σ ≤ 25 cm) but 1.1 m off; ICP, seeded by it, converges to the true pose (< 2 cm, fitness 0.89, free-space
+    consistent, well constrained) and refuses itself as inconsistent with its seed. The odometry was then fused
+    alone, confidently wrong. Now ICP reports the seed as unconfirmed (``seed_misfit``), the audit drops the
+    odometry, and the result is undetermined instead of wrong."""
+    from factorloc.evaluation import metrics
+    from factorloc.sim import generate_scenario
+
+    scenario = generate_scenario("apartment", 1000, 43, only_queries=[406])
+    sq = scenario.queries[0]
+    assert "kidnapped" in sq.faults
+    loc = Localizer(scenario.references[0].reference).localize(sq.query)
+    odo, icp = loc.step("odometry"), loc.step("icp")
+    assert odo.estimate.reliable and math.hypot(odo.estimate.values[0] - sq.truth.x, odo.estimate.values[1] - sq.truth.y) > 1.0
+    assert not icp.estimate.reliable and "inconsistent with the odometry seed" in icp.reason
+    assert math.hypot(icp.estimate.values[0] - sq.truth.x, icp.estimate.values[1] - sq.truth.y) < 0.02
+    assert "converged" in icp.estimate.diagnostics["seed_misfit"]
+    assert odo.status is StepStatus.INCONSISTENT and "seed contradicted by icp" in odo.reason
+    err = metrics.pose_errors(loc.pose.as_array()[None], sq.truth.as_array()[None])
+    assert not loc.determined and not metrics.confidently_wrong(err, loc.covariance[None])[0]
