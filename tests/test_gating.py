@@ -175,3 +175,20 @@ def test_unconstrained_position_flags_only_a_direction_nobody_measured() -> None
     assert unconstrained_position(_along_a_diagonal_wall(1.0, 0.0).covariance, 30.0)
     assert not unconstrained_position(np.diag([0.3**2, 0.3**2, 0.01]), 30.0)
     assert unconstrained_position(np.diag([np.inf, np.inf, 0.01]), 30.0)
+
+
+def test_seed_audit_drops_the_headings_searched_around_a_contradicted_seed() -> None:
+    # held-out q0371 of --queries 1000 --seed 41: the audit rejected the odometry, and the correlation, whose
+    # window the odometry's heading had centred, was fused alone 30° off
+    odo = Estimate.pose("odometry", Pose2(1.49, 3.81, 0.13), 0.09, 0.21, 0.29)
+    compass = Estimate.heading("compass", -0.30, 0.08, reliable=False, reason="2 inlier pairs < 8")
+    correlation = Estimate.heading("correlation", -0.37, 0.07, diagnostics={"seeded": True, "window_rad": 0.86})
+    violated = "seeded alignment puts 27 % of the scan in space the reference saw empty > 12 %"
+    ests = [odo, compass, correlation, _icp_misfit(1.57, 3.95, misfit=violated)]
+    contradicted = seed_audit(ests)
+    assert set(contradicted) == {0, 2}  # the unreliable compass is not fused anyway
+    assert contradicted[2] == f"searched around the odometry seed, contradicted by icp: {violated}"
+    assert set(seed_audit(ests, drop_seeded=False)) == {0}
+    # a heading found without a seed (the whole panorama searched) stands on its own
+    blind = Estimate.heading("correlation", -0.37, 0.07, diagnostics={"seeded": False})
+    assert set(seed_audit([odo, compass, blind, ests[3]])) == {0}
