@@ -4,7 +4,7 @@ ratios against Open3D, and the NEES calibration on simulated queries.
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_icp.py                 # every relation of both logs (~15 min on one core)
+    .venv/bin/python benchmarks/bench_icp.py                 # every relation of both logs (2–3 min on 2 cores)
     .venv/bin/python benchmarks/bench_icp.py --every 10      # a fixed 10 % subset
     .venv/bin/python benchmarks/bench_icp.py --sim 100       # + 100 simulated queries for the NEES figures
     .venv/bin/python benchmarks/bench_icp.py --datasets "" --kidnapped 30 --kidnapped-seeds 1,2,3
