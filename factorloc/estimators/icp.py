@@ -52,6 +52,7 @@ from factorloc.registration.covariance import (
     censi_bias_covariance,
     chamfer_covariance,
     hessian_covariance,
+    scale_heading,
 )
 from factorloc.registration.global_search import GlobalSearchParams, LikelihoodField, reference_fields, search
 from factorloc.registration.icp2d import IcpParams, IcpResult, PreparedScan, align, prepare_target
@@ -634,10 +635,7 @@ def _covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
     sigma_bias = _sigma_bias(result, config)
     k = config.bias_heading_scale
     if config.covariance == "censi":
-        cov = censi_bias_covariance(result, config.covariance_scale, sigma_bias)
-        if k != 1.0 and sigma_bias > 0.0:
-            white = censi_bias_covariance(result, config.covariance_scale, 0.0)
-            cov = white + _scale_heading(cov - white, k)
+        cov = censi_bias_covariance(result, config.covariance_scale, sigma_bias, heading_scale=k)
     else:
         if config.covariance == "hessian":
             cov = hessian_covariance(result)
@@ -645,7 +643,7 @@ def _covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
             cov = chamfer_covariance(result, config.chamfer_scale)
         cov = config.covariance_scale * cov
         if sigma_bias > 0.0:
-            cov = cov + _scale_heading(bias_covariance(result, sigma_bias), k)
+            cov = cov + scale_heading(bias_covariance(result, sigma_bias), k)
     cov = cov + np.diag([config.sigma_floor_m**2, config.sigma_floor_m**2, config.sigma_floor_rad**2])
     return 0.5 * (cov + cov.T)
 
@@ -666,14 +664,6 @@ def _sigma_bias(result: IcpResult, config: IcpConfig) -> float:
             return 1.0
         sigma *= max(1.0, config.bias_fitness_ref / fit)
     return sigma
-
-
-def _scale_heading(cov: np.ndarray, k: float) -> np.ndarray:
-    """``D cov D`` with ``D = diag(1, 1, k)``: the heading σ times ``k``, the position block and correlations kept."""
-    if k == 1.0:
-        return cov
-    d = np.array([1.0, 1.0, k])
-    return cov * d[:, None] * d[None, :]
 
 
 def _violation(prepared: IcpReference, points: np.ndarray, profile: np.ndarray, T: Pose2) -> float:

@@ -41,6 +41,7 @@ __all__ = [
     "chamfer_covariance",
     "hessian_covariance",
     "safe_inverse",
+    "scale_heading",
 ]
 
 
@@ -127,8 +128,20 @@ def chamfer_covariance(result: IcpResult, scale: float = 1.0, mean_range_m: floa
     return np.diag([s * s, s * s, st * st])
 
 
-def censi_bias_covariance(result: IcpResult, scale: float, sigma_bias_m: float, max_variance: float = 1e4) -> np.ndarray:
-    """``scale · censi_covariance(result) + bias_covariance(result, sigma_bias_m)`` from one eigen-decomposition of H.
+def scale_heading(cov: np.ndarray, k: float) -> np.ndarray:
+    """``D cov D`` with ``D = diag(1, 1, k)``: the heading σ times ``k``, the position block kept, the
+    position–heading covariances times ``k``."""
+    if k == 1.0:
+        return cov
+    d = np.array([1.0, 1.0, k])
+    return cov * d[:, None] * d[None, :]
+
+
+def censi_bias_covariance(
+    result: IcpResult, scale: float, sigma_bias_m: float, max_variance: float = 1e4, heading_scale: float = 1.0
+) -> np.ndarray:
+    """``scale · censi_covariance(result) + D bias_covariance(result, sigma_bias_m) D`` from one eigen-decomposition
+    of H, with ``D = diag(1, 1, heading_scale)`` (:func:`scale_heading`: the correlated term's heading σ scaled).
 
     The same figures as the two calls (to rounding, ~1e-12 m²) when H has
     full rank for both (the usual case, computed in one compiled call,
@@ -138,14 +151,35 @@ def censi_bias_covariance(result: IcpResult, scale: float, sigma_bias_m: float, 
     J, w, r = result.jacobians, result.weights, result.residuals_m
     if len(r) >= 4:
         ok, cov = _censi_bias_core(
-            result.hessian, J, w, r, result.variances_m2, float(scale), float(sigma_bias_m), float(max_variance)
+            result.hessian,
+            J,
+            w,
+            r,
+            result.variances_m2,
+            float(scale),
+            float(sigma_bias_m),
+            float(max_variance),
+            float(heading_scale),
         )
         if ok:
             return cov
     cov = scale * censi_covariance(result, max_variance)
     if sigma_bias_m > 0.0:
-        cov = cov + bias_covariance(result, sigma_bias_m, max_variance)
+        cov = cov + scale_heading(bias_covariance(result, sigma_bias_m, max_variance), heading_scale)
     return cov
+
+
+@njit(cache=True, inline="always")
+def _mul3(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """3×3 product in plain loops (the summation order of the reference form, bit for bit)."""
+    out = np.zeros((3, 3))
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for e in range(3):
+                acc += x[a, e] * y[e, b]
+            out[a, b] = acc
+    return out
 
 
 @njit(cache=True)
@@ -158,12 +192,14 @@ def _censi_bias_core(
     scale: float,
     sigma_bias_m: float,
     max_variance: float,
+    heading_scale: float,
 ) -> tuple[bool, np.ndarray]:
     """:func:`censi_bias_covariance`'s full-rank case, compiled: ``(True, Σ)``, or ``(False, ·)`` when H (its
     symmetric part) has an eigenvalue at or below the floor, Σw ≤ 0, or a variance reaches ``max_variance``.
 
     ``H⁻¹ = V Λ⁻¹ Vᵀ`` (``numpy.linalg.eigh``), ``Σ = scale · sym(H⁻¹ M H⁻¹) + σ_b² Σwᵢ · H⁻¹`` with the
-    meat ``M = Σ wᵢ² (σᵢ² + rᵢ²) JᵢJᵢᵀ`` (``J`` K×3 C-contiguous rows).
+    meat ``M = Σ wᵢ² (σᵢ² + rᵢ²) JᵢJᵢᵀ`` (``J`` K×3 C-contiguous rows); the σ_b term's heading row and column
+    times ``heading_scale``.
     """
     out = np.zeros((3, 3))
     sw = 0.0
@@ -194,27 +230,15 @@ def _censi_bias_core(
         for a in range(3):
             for b in range(3):
                 meat[a, b] += J[i, a] * f * J[i, b]
-    tmp = np.zeros((3, 3))
-    for a in range(3):
-        for b in range(3):
-            acc = 0.0
-            for e in range(3):
-                acc += inv[a, e] * meat[e, b]
-            tmp[a, b] = acc
-    c = np.zeros((3, 3))
-    for a in range(3):
-        for b in range(3):
-            acc = 0.0
-            for e in range(3):
-                acc += tmp[a, e] * inv[e, b]
-            c[a, b] = acc
+    c = _mul3(_mul3(inv, meat), inv)
     sb = sigma_bias_m**2 * sw
+    d = (1.0, 1.0, heading_scale)
     cov = np.empty((3, 3))
     for a in range(3):
         for b in range(3):
             cov[a, b] = scale * (0.5 * (c[a, b] + c[b, a]))
             if sigma_bias_m > 0.0:
-                cov[a, b] += sb * inv[a, b]
+                cov[a, b] += sb * inv[a, b] * d[a] * d[b]
     for a in range(3):
         if not cov[a, a] < max_variance:
             return False, out

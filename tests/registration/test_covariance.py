@@ -7,7 +7,14 @@ import math
 import numpy as np
 
 from factorloc.geometry import Pose2
-from factorloc.registration.covariance import bias_covariance, censi_covariance, chamfer_covariance, hessian_covariance
+from factorloc.registration.covariance import (
+    bias_covariance,
+    censi_bias_covariance,
+    censi_covariance,
+    chamfer_covariance,
+    hessian_covariance,
+    scale_heading,
+)
 from factorloc.registration.icp2d import IcpParams, align, prepare_target
 
 TRUE = Pose2(0.3, 0.2, math.radians(10.0))
@@ -53,3 +60,21 @@ def test_room_covariance_is_round_and_small(room_points: np.ndarray) -> None:
     s = np.sqrt(np.linalg.eigvalsh(censi_covariance(res)[:2, :2]))
     assert s[1] < 0.002
     assert s[1] < 3.0 * s[0]
+
+
+def test_censi_bias_covariance_equals_its_two_terms_with_the_heading_scale(
+    room_points: np.ndarray, corridor_points: np.ndarray
+) -> None:
+    """The compiled one-decomposition form (room: full rank) and its fallback (corridor: rank-deficient) both give
+    ``scale · Σ_censi + D Σ_bias D``, ``D = diag(1, 1, k)``."""
+    rng = np.random.default_rng(3)
+    for pts in (room_points, corridor_points):
+        src = pts[::2] + rng.normal(0, 0.005, pts[::2].shape)
+        res = align(prepare_target(pts), src, Pose2(0.02, 0.02, 0.01))
+        for k in (1.0, 0.85):
+            got = censi_bias_covariance(res, 1.5, 0.004, heading_scale=k)
+            want = 1.5 * censi_covariance(res) + scale_heading(bias_covariance(res, 0.004), k)
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-15)
+        bias = bias_covariance(res, 0.004)
+        d = scale_heading(bias, 0.5) - bias
+        assert np.allclose(d[:2, :2], 0.0) and d[2, 2] == -0.75 * bias[2, 2] and d[0, 2] == -0.5 * bias[0, 2]
