@@ -17,6 +17,14 @@ from factorloc.errors import InputError
 from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid, grid_nearest, lift_2d
 from factorloc.types import PointCloud, Scan
 
+#: Bearing bins of :func:`polar_profile` (0.5° each), and the widest gap between returns it fills (rad).
+PROFILE_BINS = 720
+PROFILE_MAX_GAP_RAD = 0.35
+#: Free-space margins: a point closer than ``R − max(MARGIN_M, MARGIN_RATIO·R)`` to the sensor violates the free
+#: range R of its bin, and one farther than ``R + max(MARGIN_M, MARGIN_RATIO·R)`` is hidden behind the return.
+MARGIN_M = 0.15
+MARGIN_RATIO = 0.05
+
 __all__ = [
     "ScanExtraction",
     "alignment_violation",
@@ -293,7 +301,9 @@ def _pca_finish(pts: np.ndarray, sums: np.ndarray, phi: np.ndarray, normals: np.
         quality[i] = q
 
 
-def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0.0, max_gap_rad: float = 0.35) -> np.ndarray:
+def polar_profile(
+    points_m: np.ndarray, n_bins: int = PROFILE_BINS, gap_free_m: float = 0.0, max_gap_rad: float = PROFILE_MAX_GAP_RAD
+) -> np.ndarray:
     """Free range per bearing bin seen from the sensor at the origin: (n_bins,) metres, NaN where unknown.
 
     Bin ``k`` covers bearings ``[-π + 2πk/n, -π + 2π(k+1)/n)``; its free range
@@ -313,7 +323,17 @@ def polar_profile(points_m: np.ndarray, n_bins: int = 720, gap_free_m: float = 0
     n_bins = int(n_bins)
     if n_bins < 1:
         raise InputError(f"n_bins must be >= 1, got {n_bins!r}")
-    return _profile(pts, n_bins, float(gap_free_m), int(max_gap_rad / (2 * np.pi) * n_bins))
+    return _profile(pts, n_bins, float(gap_free_m), _gap_bins(max_gap_rad, n_bins))
+
+
+def _gap_bins(max_gap_rad: float, n_bins: int) -> int:
+    """The widest gap :func:`polar_profile` fills, in bins."""
+    return int(max_gap_rad / (2 * np.pi) * n_bins)
+
+
+def _rigid(T) -> tuple[float, float, float, float]:  # noqa: ANN001 - a Pose2
+    """``(cos θ, sin θ, x, y)`` of a pose: how the compiled functions take a rigid motion."""
+    return math.cos(T.theta), math.sin(T.theta), T.x, T.y
 
 
 @njit(cache=True, inline="always")
@@ -369,7 +389,7 @@ def _profile(pts: np.ndarray, n_bins: int, gap_free_m: float, max_gap_bins: int)
 
 
 def free_space_violation(
-    profile_m: np.ndarray, points_m: np.ndarray, margin_m: float = 0.15, margin_ratio: float = 0.05
+    profile_m: np.ndarray, points_m: np.ndarray, margin_m: float = MARGIN_M, margin_ratio: float = MARGIN_RATIO
 ) -> float:
     """Fraction of ``points_m`` (N×2, in the profile's sensor frame) lying in space the sensor saw empty.
 
@@ -418,14 +438,16 @@ def _violations(
     return bad
 
 
-def _check_scan_and_profile(points: np.ndarray, profile: np.ndarray, name: str) -> None:
-    """InputError unless ``points`` is N×2 float64, finite, N ≥ 1 and ``profile`` a non-empty 1-D
+def _check_scan_and_profile(points: np.ndarray, profile: np.ndarray | None, name: str) -> None:
+    """InputError unless ``points`` is N×2 float64, finite, N ≥ 1 and ``profile`` (unless None) a non-empty 1-D
     float64 array (what the compiled free-space functions index without bounds checks)."""
     if not (isinstance(points, np.ndarray) and points.dtype == np.float64 and points.ndim == 2 and points.shape[1] == 2):
         raise InputError(f"{name} must be an N×2 float64 array, got {type(points).__name__} {np.shape(points)}")
     if len(points) == 0 or not np.isfinite(points).all():
         raise InputError(f"{name} must hold at least one point, all finite")
-    if not (isinstance(profile, np.ndarray) and profile.dtype == np.float64 and profile.ndim == 1 and len(profile) >= 1):
+    if profile is not None and not (
+        isinstance(profile, np.ndarray) and profile.dtype == np.float64 and profile.ndim == 1 and len(profile) >= 1
+    ):
         raise InputError(f"the profile of {name} must be a non-empty 1-D float64 array, got shape {np.shape(profile)}")
 
 
@@ -440,21 +462,7 @@ def alignment_violation(profile_a: np.ndarray, points_a: np.ndarray, profile_b: 
     """
     _check_scan_and_profile(points_a, profile_a, "points_a")
     _check_scan_and_profile(points_b, profile_b, "points_b")
-    T_b_a = T_a_b.inverse()
-    return _alignment_violation(
-        profile_a,
-        points_b,
-        math.cos(T_a_b.theta),
-        math.sin(T_a_b.theta),
-        T_a_b.x,
-        T_a_b.y,
-        profile_b,
-        points_a,
-        math.cos(T_b_a.theta),
-        math.sin(T_b_a.theta),
-        T_b_a.x,
-        T_b_a.y,
-    )
+    return _alignment_violation(profile_a, points_b, *_rigid(T_a_b), profile_b, points_a, *_rigid(T_a_b.inverse()))
 
 
 @njit(cache=True)
@@ -472,35 +480,27 @@ def _alignment_violation(
     x_ba: float,
     y_ba: float,
 ) -> float:
-    v_b = _violations(prof_a, pts_b, True, c_ab, s_ab, x_ab, y_ab, 0.15, 0.05) / pts_b.shape[0]
-    v_a = _violations(prof_b, pts_a, True, c_ba, s_ba, x_ba, y_ba, 0.15, 0.05) / pts_a.shape[0]
+    v_b = _violations(prof_a, pts_b, True, c_ab, s_ab, x_ab, y_ab, MARGIN_M, MARGIN_RATIO) / pts_b.shape[0]
+    v_a = _violations(prof_b, pts_a, True, c_ba, s_ba, x_ba, y_ba, MARGIN_M, MARGIN_RATIO) / pts_a.shape[0]
     return max(v_b, v_a)
 
 
 def profile_and_violation(
     profile_a: np.ndarray, points_a: np.ndarray, points_b: np.ndarray, T_a_b, gap_free_m: float
 ) -> tuple[np.ndarray, float]:
-    """Scan b's :func:`polar_profile` (720 bins, ``gap_free_m``, default gap width) and
+    """Scan b's :func:`polar_profile` (default bins and gap width, ``gap_free_m``) and
     :func:`alignment_violation` of ``T_a_b`` with it, in one compiled call; the arrays as there."""
     _check_scan_and_profile(points_a, profile_a, "points_a")
-    _check_scan_and_profile(points_b, profile_a, "points_b")
-    T_b_a = T_a_b.inverse()
-    n_bins = 720
+    _check_scan_and_profile(points_b, None, "points_b")
     return _profile_and_violation(
         profile_a,
         points_a,
         points_b,
-        math.cos(T_a_b.theta),
-        math.sin(T_a_b.theta),
-        T_a_b.x,
-        T_a_b.y,
-        math.cos(T_b_a.theta),
-        math.sin(T_b_a.theta),
-        T_b_a.x,
-        T_b_a.y,
-        n_bins,
+        *_rigid(T_a_b),
+        *_rigid(T_a_b.inverse()),
+        PROFILE_BINS,
         float(gap_free_m),
-        int(0.35 / (2 * np.pi) * n_bins),
+        _gap_bins(PROFILE_MAX_GAP_RAD, PROFILE_BINS),
     )
 
 
@@ -546,21 +546,8 @@ def overlap_fitness(
     """
     _check_scan_and_profile(points_a, profile_a, "points_a")
     _check_scan_and_profile(points_b, profile_b, "points_b")
-    T_b_a = T_a_b.inverse()
     f1, n1, f2, n2 = _overlap_fitness(
-        profile_a,
-        points_a,
-        points_b,
-        math.cos(T_a_b.theta),
-        math.sin(T_a_b.theta),
-        T_a_b.x,
-        T_a_b.y,
-        profile_b,
-        math.cos(T_b_a.theta),
-        math.sin(T_b_a.theta),
-        T_b_a.x,
-        T_b_a.y,
-        float(distance_m),
+        profile_a, points_a, points_b, *_rigid(T_a_b), profile_b, *_rigid(T_a_b.inverse()), float(distance_m)
     )
     return min(f1, f2), min(n1, n2)
 
@@ -581,7 +568,7 @@ def _visible_fit(
         x, y = pts[i, 0], pts[i, 1]
         x, y = x * c - y * s + tx, x * s + y * c + ty
         free = prof[_bin(x, y, n_bins)]
-        if not (math.isfinite(free) and math.hypot(x, y) <= free + max(0.15, 0.05 * free)):
+        if not (math.isfinite(free) and math.hypot(x, y) <= free + max(MARGIN_M, MARGIN_RATIO * free)):
             continue
         n_vis += 1
         best, k = grid_nearest(x, y, grid_pts, start, geo, d2)
