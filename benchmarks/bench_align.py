@@ -50,7 +50,7 @@ from factorloc.evaluation.relations import OdometryModel, read_relations, relati
 from factorloc.geometry import Pose2
 from factorloc.registration.icp2d import align, prepare_target
 from factorloc.registration.kernels import kernel_from_name
-from factorloc.registration.open3d_peer import open3d_icp
+from factorloc.registration.open3d_peer import open3d_cloud, open3d_icp, pose_from_matrix, pose_matrix
 from factorloc.registration.scan2d import estimate_normals_2d
 from factorloc.types import Query, Reference, Scan
 
@@ -126,21 +126,6 @@ def run(name: str, data: Path, every: int, repeats: int) -> None:
     )
 
 
-def _o3d_cloud(points_m: np.ndarray, normals: np.ndarray | None = None):  # noqa: ANN202 - open3d object
-    """An Open3D cloud from N×2 points lifted to z = 0 (and N×2 normals lifted to (n_x, n_y, 0))."""
-    import open3d as o3d
-
-    c = o3d.geometry.PointCloud()
-    c.points = o3d.utility.Vector3dVector(np.column_stack([points_m, np.zeros(len(points_m))]))
-    if normals is not None:
-        c.normals = o3d.utility.Vector3dVector(np.column_stack([normals, np.zeros(len(normals))]))
-    return c
-
-
-def _o3d_pose(T: np.ndarray) -> Pose2:
-    return Pose2(float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0]))
-
-
 def run_step(name: str, data: Path, every: int, repeats: int) -> None:
     """Table 2: the whole ICP step (prepare + estimate) against Open3D bare (a) and Open3D's per-pair job (b)."""
     import open3d as o3d
@@ -161,16 +146,16 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
 
     def o3d_bare(c: dict) -> Pose2:
         res = reg.registration_icp(c["src"], c["tgt"], GATE_M, c["T0"], p2l, criteria)
-        return _o3d_pose(np.asarray(res.transformation))
+        return pose_from_matrix(res.transformation)
 
     def o3d_job(c: dict) -> Pose2:
         ref, qry = c["ref"], c["qry"]
-        src = _o3d_cloud(qry)
-        tgt = _o3d_cloud(ref, estimate_normals_2d(ref, icp_cfg.icp.normal_k, icp_cfg.icp.normal_radius_m)[0])
+        src = open3d_cloud(qry)
+        tgt = open3d_cloud(ref, estimate_normals_2d(ref, icp_cfg.icp.normal_k, icp_cfg.icp.normal_radius_m)[0])
         res = reg.registration_icp(src, tgt, GATE_M, c["T0"], p2l, criteria)
         info = reg.get_information_matrix_from_point_clouds(src, tgt, GATE_M, res.transformation)
         c["info"] = info
-        return _o3d_pose(np.asarray(res.transformation))
+        return pose_from_matrix(res.transformation)
 
     methods = {
         "ours whole step (prepare+estimate)": ours,
@@ -182,9 +167,7 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
     reliable = np.zeros(len(pairs), dtype=bool)
     for k, (ref, qry, seed, truth, dist, rot) in enumerate(pairs):
         odom = model.odometry(seed, dist, rot)
-        T0 = np.eye(4)
-        T0[:2, :2] = [[math.cos(seed.theta), -math.sin(seed.theta)], [math.sin(seed.theta), math.cos(seed.theta)]]
-        T0[0, 3], T0[1, 3] = seed.x, seed.y
+        T0 = pose_matrix(seed)
         c = {
             "ref": ref,
             "qry": qry,
@@ -192,8 +175,8 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
             "reference": Reference(scan=Scan(ref)),
             "query": Query(scan=Scan(qry)),
             "hypotheses": Hypotheses().plus(odometry_estimate(odom, config.odometry)),
-            "src": _o3d_cloud(qry),
-            "tgt": _o3d_cloud(ref, prepare_target(ref, icp_cfg.icp).normals),
+            "src": open3d_cloud(qry),
+            "tgt": open3d_cloud(ref, prepare_target(ref, icp_cfg.icp).normals),
         }
         for _ in range(repeats):
             for m, f in methods.items():

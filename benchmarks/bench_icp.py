@@ -55,6 +55,7 @@ def _open3d_local_ratios(log, relations, results, repeats: int = 3) -> tuple[flo
     from factorloc.estimators.icp import IcpStep
     from factorloc.estimators.odometry import estimate as odometry_estimate
     from factorloc.evaluation.relations import OdometryModel, relations_config
+    from factorloc.registration.open3d_peer import open3d_cloud, pose_matrix
     from factorloc.registration.scan2d import estimate_normals_2d
     from factorloc.types import Query, Reference, Scan
 
@@ -65,18 +66,11 @@ def _open3d_local_ratios(log, relations, results, repeats: int = 3) -> tuple[flo
     step = IcpStep(config.icp)
     model = OdometryModel()
 
-    def cloud(points_m: np.ndarray, normals: np.ndarray | None = None):  # noqa: ANN202 - open3d object
-        c = o3d.geometry.PointCloud()
-        c.points = o3d.utility.Vector3dVector(np.column_stack([points_m, np.zeros(len(points_m))]))
-        if normals is not None:
-            c.normals = o3d.utility.Vector3dVector(np.column_stack([normals, np.zeros(len(normals))]))
-        return c
-
     def ours(reference: Reference, query: Query, hyp: Hypotheses) -> None:
         step.estimate(step.prepare(reference), query, hyp)
 
     def job(ref: np.ndarray, qry: np.ndarray, T0: np.ndarray) -> None:
-        src, tgt = cloud(qry), cloud(ref, estimate_normals_2d(ref)[0])
+        src, tgt = open3d_cloud(qry), open3d_cloud(ref, estimate_normals_2d(ref)[0])
         res = reg.registration_icp(src, tgt, 0.5, T0, p2l, criteria)
         reg.get_information_matrix_from_point_clouds(src, tgt, 0.5, res.transformation)
 
@@ -90,10 +84,8 @@ def _open3d_local_ratios(log, relations, results, repeats: int = 3) -> tuple[flo
         odom = model.odometry(seed, *log.odometry.distance_between(t1, t2))
         hyp = Hypotheses().plus(odometry_estimate(odom, config.odometry))
         reference, query = Reference(scan=Scan(ref)), Query(scan=Scan(qry))
-        T0 = np.eye(4)
-        T0[:2, :2] = [[math.cos(seed.theta), -math.sin(seed.theta)], [math.sin(seed.theta), math.cos(seed.theta)]]
-        T0[0, 3], T0[1, 3] = seed.x, seed.y
-        src, tgt = cloud(qry), cloud(ref, estimate_normals_2d(ref)[0])
+        T0 = pose_matrix(seed)
+        src, tgt = open3d_cloud(qry), open3d_cloud(ref, estimate_normals_2d(ref)[0])
         calls = (
             (ours, (reference, query, hyp)),
             (reg.registration_icp, (src, tgt, 0.5, T0, p2l, criteria)),

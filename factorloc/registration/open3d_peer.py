@@ -17,7 +17,7 @@ import numpy as np
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 
-__all__ = ["Open3dResult", "open3d_icp"]
+__all__ = ["Open3dResult", "open3d_cloud", "open3d_icp", "pose_from_matrix", "pose_matrix"]
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,8 @@ class Open3dResult:
     rmse_m: float
 
 
-def _matrix(p: Pose2) -> np.ndarray:
+def pose_matrix(p: Pose2) -> np.ndarray:
+    """The 4×4 homogeneous matrix of a planar pose (z = 0), as Open3D takes a transformation."""
     T = np.eye(4)
     c, s = math.cos(p.theta), math.sin(p.theta)
     T[:2, :2] = [[c, -s], [s, c]]
@@ -37,7 +38,14 @@ def _matrix(p: Pose2) -> np.ndarray:
     return T
 
 
-def _cloud(points_m: np.ndarray, normals: np.ndarray | None = None):  # noqa: ANN202 - open3d object
+def pose_from_matrix(T: np.ndarray) -> Pose2:
+    """The planar pose of a 4×4 transformation (its x, y and the yaw of its rotation; z, roll, pitch dropped)."""
+    T = np.asarray(T)
+    return Pose2(float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0]))
+
+
+def open3d_cloud(points_m: np.ndarray, normals: np.ndarray | None = None):  # noqa: ANN201 - open3d object
+    """An ``open3d.geometry.PointCloud`` of N×2 points lifted to z = 0 (and N×2 normals lifted to (n_x, n_y, 0))."""
     import open3d as o3d
 
     pts = np.asarray(points_m, dtype=np.float64)
@@ -74,19 +82,16 @@ def open3d_icp(
     reg = o3d.pipelines.registration
     if method == "point_to_point":
         est = reg.TransformationEstimationPointToPoint()
-        tgt = _cloud(target_points_m)
+        tgt = open3d_cloud(target_points_m)
     elif method == "point_to_plane":
         if target_normals is None:
             raise InputError("open3d_icp(method='point_to_plane') needs target_normals (M×2)")
         est = reg.TransformationEstimationPointToPlane()
-        tgt = _cloud(target_points_m, target_normals)
+        tgt = open3d_cloud(target_points_m, target_normals)
     else:
         raise InputError(f"method must be 'point_to_point' or 'point_to_plane', got {method!r}")
-    src = _cloud(source_points_m)
+    src = open3d_cloud(source_points_m)
     res = reg.registration_icp(
-        src, tgt, max_correspondence_m, _matrix(T_init), est, reg.ICPConvergenceCriteria(max_iteration=max_iterations)
+        src, tgt, max_correspondence_m, pose_matrix(T_init), est, reg.ICPConvergenceCriteria(max_iteration=max_iterations)
     )
-    T = np.asarray(res.transformation)
-    return Open3dResult(
-        Pose2(float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0])), float(res.fitness), float(res.inlier_rmse)
-    )
+    return Open3dResult(pose_from_matrix(res.transformation), float(res.fitness), float(res.inlier_rmse))
