@@ -38,6 +38,15 @@ def _free_pose(world, rng: np.random.Generator, clearance: float = 0.4) -> Pose2
             return Pose2(p[0], p[1], rng.uniform(-math.pi, math.pi))
 
 
+def _pose_within_2m(world, T_ref: Pose2, rng: np.random.Generator) -> Pose2:  # noqa: ANN001 - a sim World
+    """A pose uniform over the free disc of radius 2 m around ``T_ref`` (clearance 0.3 m), any heading."""
+    while True:
+        r, a = 2.0 * math.sqrt(rng.uniform()), rng.uniform(-math.pi, math.pi)
+        p = np.array([T_ref.x + r * math.cos(a), T_ref.y + r * math.sin(a)])
+        if world.is_free(p[None, :], 0.3)[0]:
+            return Pose2(p[0], p[1], rng.uniform(-math.pi, math.pi))
+
+
 def _cases(n: int, seed: int, query_360: bool) -> list[Case]:
     """Reference = 360° cloud; query within 2 m of it, a single depth view (or a 360° one)."""
     world = apartment()
@@ -46,12 +55,7 @@ def _cases(n: int, seed: int, query_360: bool) -> list[Case]:
     out: list[Case] = []
     while len(out) < n:
         T_ref = _free_pose(world, rng)
-        while True:
-            r, a = 2.0 * math.sqrt(rng.uniform()), rng.uniform(-math.pi, math.pi)
-            p = np.array([T_ref.x + r * math.cos(a), T_ref.y + r * math.sin(a)])
-            if world.is_free(p[None, :], 0.3)[0]:
-                break
-        truth = Pose2(p[0], p[1], rng.uniform(-math.pi, math.pi))
+        truth = _pose_within_2m(world, T_ref, rng)
         try:
             ref = Reference(cloud=render_cloud_360(world, T_ref, DepthCamera(stride_px=4), rng), T_world_reference=T_ref)
             cloud = (
@@ -305,12 +309,7 @@ def _laser_pair(seed: int) -> tuple[Reference, np.ndarray, Pose2, Hypotheses]:
     world = apartment()
     rng = np.random.default_rng(seed)
     T_ref = _free_pose(world, rng)
-    while True:
-        r, a = 2.0 * math.sqrt(rng.uniform()), rng.uniform(-math.pi, math.pi)
-        p = np.array([T_ref.x + r * math.cos(a), T_ref.y + r * math.sin(a)])
-        if world.is_free(p[None, :], 0.3)[0]:
-            break
-    truth = Pose2(p[0], p[1], rng.uniform(-math.pi, math.pi))
+    truth = _pose_within_2m(world, T_ref, rng)
     ref = Reference(scan=render_scan(world, T_ref, rng=rng), T_world_reference=T_ref)
     pts = render_scan(world, truth, rng=rng).points_m
     seed_pose = Pose2(truth.x + rng.normal(0, 0.05), truth.y + rng.normal(0, 0.05), truth.theta + rng.normal(0, 0.035))
