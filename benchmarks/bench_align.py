@@ -72,6 +72,18 @@ def _pairs(name: str, data: Path, every: int) -> list[tuple[np.ndarray, np.ndarr
     return out
 
 
+def _time_pair(methods: dict, arg, truth: Pose2, repeats: int, seconds: dict, errors: dict, k: int) -> None:  # noqa: ANN001
+    """Run every method on one pair's ``arg`` ``repeats`` times in turn; keep each one's fastest time and its error
+    (translation m, rotation deg) against ``truth`` in row ``k`` of ``seconds[m]`` / ``errors[m]``."""
+    for _ in range(repeats):
+        for m, f in methods.items():
+            t0 = time.perf_counter()
+            est = f(arg)
+            seconds[m][k] = min(seconds[m][k], time.perf_counter() - t0)
+            e = truth.between(est)
+            errors[m][k] = (math.hypot(e.x, e.y), abs(math.degrees(e.theta)))
+
+
 def run(name: str, data: Path, every: int, repeats: int) -> None:
     cfg = IcpConfig()
     params = replace(cfg.icp, max_correspondence_m=GATE_M)
@@ -105,13 +117,7 @@ def run(name: str, data: Path, every: int, repeats: int) -> None:
     errors = {m: np.zeros((len(pairs), 2)) for m in methods}
     for k, (ref, qry, seed, truth, _, _) in enumerate(pairs):
         p = (ref, qry, seed, truth, prepare_target(ref, params))
-        for _ in range(repeats):
-            for m, f in methods.items():
-                t0 = time.perf_counter()
-                est = f(p)
-                seconds[m][k] = min(seconds[m][k], time.perf_counter() - t0)
-                e = truth.between(est)
-                errors[m][k] = (math.hypot(e.x, e.y), abs(math.degrees(e.theta)))
+        _time_pair(methods, p, truth, repeats, seconds, errors, k)
     print(f"{name}: {len(pairs)} local relations (every {every}th relation), fastest of {repeats} runs per pair")
     print(f"  {'method':32s} {'ms median':>9s} {'ms mean':>8s} {'trans cm':>9s} {'rot deg':>8s}")
     for m in methods:
@@ -178,13 +184,7 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
             "src": open3d_cloud(qry),
             "tgt": open3d_cloud(ref, prepare_target(ref, icp_cfg.icp).normals),
         }
-        for _ in range(repeats):
-            for m, f in methods.items():
-                t0 = time.perf_counter()
-                est = f(c)
-                seconds[m][k] = min(seconds[m][k], time.perf_counter() - t0)
-                e = truth.between(est)
-                errors[m][k] = (math.hypot(e.x, e.y), abs(math.degrees(e.theta)))
+        _time_pair(methods, c, truth, repeats, seconds, errors, k)
         reliable[k] = c["reliable"]
     print(f"{name}: whole ICP step, {len(pairs)} local relations (every {every}th relation), fastest of {repeats} runs per pair")
     print(f"  {'method':36s} {'ms median':>9s} {'ms mean':>8s} {'trans cm':>9s} {'rot deg':>8s}")
