@@ -40,13 +40,21 @@ from factorloc.types import Component, Estimate
 POSE_KEY = 0
 
 
-def _noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
-    """The one place noise models are built: diagonal → Diagonal.Sigmas, else Gaussian.Covariance."""
+def noise_model(covariance: np.ndarray) -> gtsam.noiseModel.Base:
+    """The one place noise models are built: diagonal → ``Diagonal.Sigmas``, else ``Gaussian.Covariance``.
+
+    Built with ``smart=False``: GTSAM's "smart" constructors replace a model whose σ are within 1e-9 of 1 by
+    a unit model (and equal σ by an isotropic one), which changes the variance by up to 2e-9 relative —
+    whether it does depends on the last bits of σ, so a fused covariance would depend on rounding.
+    """
     cov = np.asarray(covariance, dtype=np.float64)
     diag = np.diagonal(cov)
     if not np.any(cov - np.diagflat(diag)):
-        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(diag))
-    return gtsam.noiseModel.Gaussian.Covariance(cov)
+        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(diag), False)
+    return gtsam.noiseModel.Gaussian.Covariance(cov, False)
+
+
+_noise = noise_model
 
 
 def factors_for(estimate: Estimate, key: int = POSE_KEY) -> list[gtsam.NonlinearFactor]:

@@ -40,7 +40,7 @@ import numpy as np
 from factorloc.baselines.common import reliable_estimates
 from factorloc.errors import ConfigError
 from factorloc.fusion.base import Fused, check_estimates, undetermined_components
-from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance
+from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance, noise_model
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate, Query, StepReport
 
@@ -55,11 +55,7 @@ def _robust(noise: gtsam.noiseModel.Base, kernel: str, k: float) -> gtsam.noiseM
     return gtsam.noiseModel.Robust.Create(est, noise)
 
 
-def _noise(covariance: np.ndarray) -> gtsam.noiseModel.Base:
-    cov = np.asarray(covariance, dtype=np.float64)
-    if np.count_nonzero(cov - np.diag(np.diag(cov))) == 0:
-        return gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(np.diag(cov)))
-    return gtsam.noiseModel.Gaussian.Covariance(cov)
+_noise = noise_model
 
 
 def robust_factors_for(estimate: Estimate, kernel: str, k: float, key: int = POSE_KEY) -> list[gtsam.NonlinearFactor]:

@@ -64,7 +64,7 @@ PLACEHOLDER_SIGMA = 30.0
 
 
 def _diag_noise(sigmas: np.ndarray) -> gtsam.noiseModel.Base:
-    return gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=np.float64))
+    return gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=np.float64), False)  # not "smart": see noise_model
 
 
 class TrajectorySmoother:
