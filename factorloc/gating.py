@@ -19,7 +19,8 @@ Three kinds of gate:
   (:func:`seed_audit`). The odometry of a
   kidnapped robot is the case: it cannot know it was moved, and without
   the audit it is fused as reliable while metres wrong. The step decides
-  (``diagnostics["seed_misfit"]``); the audit only reads it.
+  and says so in typed evidence (``Estimate.seed``,
+  :class:`~factorloc.verdicts.SeedEvidence`); the audit only reads it.
 """
 
 from __future__ import annotations
@@ -275,36 +276,22 @@ def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999, 
     return verdicts
 
 
-#: The diagnostic key by which a step reports that its data contradict its seed (value: the reason, a string).
-SEED_MISFIT = "seed_misfit"
-
-
 def seed_misfit(estimate: Estimate) -> str:
     """Why ``estimate``'s own data contradict the seed it was given ("" when they do not).
 
-    The step decides and reports it in ``diagnostics["seed_misfit"]`` (a
-    non-empty reason; empty: the step checked and its data do not
-    contradict the seed); without the key, nothing is contradicted. The
-    ICP step reports a misfit when its *seeded* alignment puts more than
-    ``max_violation`` of either scan into space the other sensor saw empty
-    or when its seeded alignment failed and its global search found nothing
-    reliable (:func:`factorloc.estimators.icp.estimate`). An estimate that reliably
-    measures a position of its own contradicts nothing here (the
-    consistency gate weighs it against the seed); a reliable heading-only
-    one may still report a misfit.
-
-    There used to be a second source, inferred here from the ICP
-    diagnostics (a seeded ICP that fell back to its global search and found
-    nothing reliable); it disagreed with the ICP's own verdict where the
-    step had judged the seed free-space consistent. The ICP step now makes
-    that inference itself (:func:`factorloc.estimators.icp._seed_misfit`),
-    with its measured trade-off.
+    The step decides and reports it as typed evidence (``estimate.seed``, a
+    :class:`~factorloc.verdicts.SeedEvidence` whose checks failed); the audit only reads it. The ICP step
+    reports a misfit when its *seeded* alignment puts more than ``max_violation`` of either scan into space
+    the other sensor saw empty, when its seeded alignment failed and its global search found nothing
+    reliable, or when it converged far from its seed to a fit of its own
+    (:func:`factorloc.estimators.icp.estimate`). An estimate that reliably measures a position of its own
+    contradicts nothing here (the consistency gate weighs it against the seed); a reliable heading-only one
+    may still report a misfit.
     """
-    d = estimate.diagnostics
     if estimate.reliable and estimate.measures(Component.X):
         return ""
-    reason = d.get(SEED_MISFIT)
-    return f"{estimate.step}: {reason}" if reason else ""
+    evidence = estimate.seed
+    return f"{estimate.step}: {evidence.reason}" if evidence is not None and evidence.contradicted else ""
 
 
 def seed_audit(estimates: Sequence[Estimate], drop_seeded: bool = True) -> dict[int, str]:
@@ -344,7 +331,8 @@ def seed_audit(estimates: Sequence[Estimate], drop_seeded: bool = True) -> dict[
             if drop_seeded:
                 for k in range(seed + 1, j):
                     e_k = estimates[k]
-                    if e_k.reliable and not e_k.measures(Component.X) and e_k.diagnostics.get("seeded") and k not in out:
+                    windowed = e_k.seed is not None and e_k.seed.windowed
+                    if e_k.reliable and not e_k.measures(Component.X) and windowed and k not in out:
                         out[k] = f"searched around the {estimates[seed].step} seed, contradicted by {why}"
     return out
 
@@ -353,7 +341,6 @@ __all__ = [
     "GROUPS",
     "HEADING",
     "POSITION",
-    "SEED_MISFIT",
     "Verdict",
     "chi2_threshold",
     "consistency_gate",

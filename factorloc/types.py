@@ -22,6 +22,7 @@ import numpy as np
 from factorloc._validate import bgr_image, finite_float, float_array, nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.verdicts import Check, SeedEvidence, failed, render_checks
 
 if TYPE_CHECKING:  # pragma: no cover
     from factorloc.config import Config
@@ -110,9 +111,17 @@ class Estimate:
         (the patent's case) have a diagonal one; use :meth:`heading`,
         :meth:`position` or :meth:`pose` to build from sigmas.
     reliable, reason
-        The estimator's own verdict and a human-readable reason.
+        The estimator's own verdict and a human-readable reason. Without a ``reason``, an estimate with
+        ``checks`` gets the one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
     diagnostics
-        Free-form figures: match count, peak correlation, residual, scale…
+        Free-form figures for people and plots: match count, peak correlation, residual, scale… Nothing in
+        the library decides on them: decisions travel as ``checks`` and ``seed``.
+    checks
+        The step's reliability rules as typed :class:`~factorloc.verdicts.Check` records, in the order they
+        apply. An estimate with a failed check cannot be ``reliable``.
+    seed
+        What seeded the step and what its data say about that seed (:class:`~factorloc.verdicts.SeedEvidence`;
+        None: the step used no seed and tested none). The gate's seed audit reads only this.
     """
 
     step: str
@@ -122,6 +131,8 @@ class Estimate:
     reliable: bool = True
     reason: str = ""
     diagnostics: Mapping[str, Any] = field(default_factory=dict)
+    checks: tuple[Check, ...] = ()
+    seed: SeedEvidence | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.step, str) or not self.step:
@@ -136,7 +147,19 @@ class Estimate:
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "covariance", _covariance(f"Estimate({self.step}).covariance", self.covariance, k))
         object.__setattr__(self, "reliable", bool(self.reliable))
-        object.__setattr__(self, "reason", str(self.reason))
+        checks = tuple(self.checks)
+        for c in checks:
+            if not isinstance(c, Check):
+                raise InputError(f"Estimate({self.step}).checks must hold factorloc.verdicts.Check, got {type(c).__name__}")
+        if self.reliable and failed(checks):
+            raise InputError(f"Estimate({self.step}) cannot be reliable with failed checks: {render_checks(checks)}")
+        object.__setattr__(self, "checks", checks)
+        if self.seed is not None and not isinstance(self.seed, SeedEvidence):
+            raise InputError(f"Estimate({self.step}).seed must be a SeedEvidence or None, got {type(self.seed).__name__}")
+        reason = str(self.reason)
+        if not reason and not self.reliable and checks:
+            reason = render_checks(checks)
+        object.__setattr__(self, "reason", reason)
         object.__setattr__(self, "diagnostics", MappingProxyType(dict(self.diagnostics)))
 
     # --- builders -----------------------------------------------------------
@@ -222,12 +245,23 @@ class Estimate:
             raise InputError(f"Estimate({self.step}) does not measure {missing}")
         idx = [self.components.index(c) for c in comps]
         return Estimate(
-            self.step, comps, self.values[idx], self.covariance[np.ix_(idx, idx)], self.reliable, self.reason, self.diagnostics
+            self.step,
+            comps,
+            self.values[idx],
+            self.covariance[np.ix_(idx, idx)],
+            self.reliable,
+            self.reason,
+            self.diagnostics,
+            self.checks,
+            self.seed,
         )
 
-    def with_verdict(self, reliable: bool, reason: str) -> Estimate:
-        """A copy with another reliability verdict."""
-        return Estimate(self.step, self.components, self.values, self.covariance, reliable, reason, self.diagnostics)
+    def with_verdict(self, reliable: bool, reason: str, checks: Sequence[Check] | None = None) -> Estimate:
+        """A copy with another reliability verdict (and, when given, other checks)."""
+        kept = self.checks if checks is None else tuple(checks)
+        return Estimate(
+            self.step, self.components, self.values, self.covariance, reliable, reason, self.diagnostics, kept, self.seed
+        )
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready dict (the format ``factorloc fuse`` reads)."""
@@ -239,6 +273,8 @@ class Estimate:
             "reliable": self.reliable,
             "reason": self.reason,
             "diagnostics": {k: _jsonable(v) for k, v in self.diagnostics.items()},
+            "checks": [c.to_dict() for c in self.checks],
+            "seed": None if self.seed is None else self.seed.to_dict(),
         }
 
     @classmethod
@@ -266,6 +302,8 @@ class Estimate:
             reliable=data.get("reliable", True),
             reason=data.get("reason", ""),
             diagnostics=data.get("diagnostics", {}),
+            checks=tuple(Check.from_dict(c) for c in data.get("checks") or ()),
+            seed=None if data.get("seed") is None else SeedEvidence.from_dict(data["seed"]),
         )
 
     def __eq__(self, other: object) -> bool:
@@ -279,6 +317,8 @@ class Estimate:
             and self.reliable == other.reliable
             and self.reason == other.reason
             and dict(self.diagnostics) == dict(other.diagnostics)
+            and self.checks == other.checks
+            and self.seed == other.seed
         )
 
     __hash__ = None  # type: ignore[assignment]

@@ -15,6 +15,7 @@ from factorloc.gating import (
     sigma_gate,
     unconstrained_position,
 )
+from factorloc.verdicts import Check, SeedEvidence, Unit
 
 
 def test_sigma_gate_uses_the_long_axis_of_the_position_covariance() -> None:
@@ -89,16 +90,18 @@ def test_consistent_estimates_all_pass() -> None:
     assert passed >= 195  # false rejections at the 0.1 % level per test, a few rounds
 
 
+def _misfit(label: str) -> SeedEvidence:
+    """Evidence of a step whose data contradict its odometry seed (one failed flag check named ``label``)."""
+    return SeedEvidence("odometry", "odometry", checks=(Check.flag("icp.seed.test", label, False),))
+
+
 def _icp_misfit(
-    x: float, y: float, *, seeded: bool = True, used_global: bool = True, reliable: bool = False, misfit: str | None = None
+    x: float, y: float, *, used_global: bool = True, reliable: bool = False, misfit: SeedEvidence | None = None
 ) -> Estimate:
     """An ICP estimate as the ICP step reports a seeded alignment that failed and a global search that found nothing sure.
 
-    ``misfit``: the step's own ``seed_misfit`` verdict (None: the key absent, the step did not check).
+    ``misfit``: the step's own seed evidence (None: the step did not check).
     """
-    diagnostics = {"seeded": seeded, "used_global_init": used_global, "n_query_points": 360}
-    if misfit is not None:
-        diagnostics["seed_misfit"] = misfit
     return Estimate.pose(
         "icp",
         Pose2(x, y, 0.3),
@@ -107,36 +110,39 @@ def _icp_misfit(
         0.003,
         reliable=reliable,
         reason="ambiguous: a distinct solution scores 0.39 vs 0.43 (global initialization, widened)",
-        diagnostics=diagnostics,
+        diagnostics={"used_global_init": used_global, "n_query_points": 360},
+        seed=misfit,
     )
 
 
 def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() -> None:
     odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
     compass = Estimate.heading("compass", 1.2, 0.1, reliable=False, reason="2 inlier pairs < 8")
-    violated = "seeded alignment puts 31 % of the scan in space the reference saw empty > 12 %"
-    contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9, misfit=violated)])
-    assert contradicted == {0: f"seed contradicted by icp: {violated}"}
-    # an explicit reason from the step is used as given
-    told = Estimate.heading("icp", 0.0, 0.1, reliable=False, diagnostics={"seed_misfit": "fitness 0.02 at the seed"})
-    assert seed_audit([odo, told]) == {0: "seed contradicted by icp: fitness 0.02 at the seed"}
-    # a step that reports the key empty has checked its seed: its diagnostics are not second-guessed
+    violated = Check.at_most("icp.seed.free_space", "share in seen-free space", 0.31, 0.12, Unit.FRACTION)
+    evidence = SeedEvidence("odometry", "odometry", checks=(violated,))
+    contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9, misfit=evidence)])
+    assert contradicted == {0: "seed contradicted by icp: share in seen-free space 31 % > 12 %"}
+    # the step's own evidence is used as given
+    told = Estimate.heading("icp", 0.0, 0.1, reliable=False, seed=_misfit("a fit near the seed"))
+    assert seed_audit([odo, told]) == {0: "seed contradicted by icp: not a fit near the seed"}
+    # a step that reports passed seed checks has checked its seed: its other figures are not second-guessed
+    passed = SeedEvidence("odometry", "odometry", checks=(Check.flag("icp.seed.fits_near", "fits near", True),))
     checked = Estimate.pose(
         "icp", Pose2(1.3, 1.9, 0.3), 0.005, 0.005, 0.003, reliable=False,
-        diagnostics={"seeded": True, "used_global_init": True, "seed_misfit": ""},
+        diagnostics={"used_global_init": True}, seed=passed,
     )  # fmt: skip
     assert seed_audit([odo, checked]) == {}
     # a reliable heading-only result (a wall fixes the heading, not the position) may still refute the position seed
-    wall = Estimate.heading("icp", 0.3, 0.003, diagnostics={"seed_misfit": "18 % of the scan in seen-free space"})
-    assert seed_audit([odo, wall]) == {0: "seed contradicted by icp: 18 % of the scan in seen-free space"}
+    wall = Estimate.heading("icp", 0.3, 0.003, seed=_misfit("18 % of the scan outside seen-free space"))
+    assert seed_audit([odo, wall]) == {0: "seed contradicted by icp: not 18 % of the scan outside seen-free space"}
 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
     odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 1.2), 0.06, 0.06, 0.05)
-    violated = "seeded alignment puts 31 % of the scan in space the reference saw empty > 12 %"
+    violated = _misfit("31 % of the scan outside seen-free space")
     # a seeded fit that failed and a global search that found nothing sure, but the step checked its seed and found
     # it free-space consistent (or did not check): nothing refutes the seed — no second guess from the diagnostics
-    assert seed_audit([odo, _icp_misfit(1.3, 1.9, misfit="")]) == {}
+    assert seed_audit([odo, _icp_misfit(1.3, 1.9, misfit=SeedEvidence("odometry", "odometry"))]) == {}
     assert seed_audit([odo, _icp_misfit(1.3, 1.9)]) == {}
     # a degenerate seeded fit does not search globally: it says nothing against the seed
     assert seed_audit([odo, _icp_misfit(3.0, 0.9, used_global=False)]) == {}
@@ -182,13 +188,14 @@ def test_seed_audit_drops_the_headings_searched_around_a_contradicted_seed() -> 
     # window the odometry's heading had centred, was fused alone 30° off
     odo = Estimate.pose("odometry", Pose2(1.49, 3.81, 0.13), 0.09, 0.21, 0.29)
     compass = Estimate.heading("compass", -0.30, 0.08, reliable=False, reason="2 inlier pairs < 8")
-    correlation = Estimate.heading("correlation", -0.37, 0.07, diagnostics={"seeded": True, "window_rad": 0.86})
-    violated = "seeded alignment puts 27 % of the scan in space the reference saw empty > 12 %"
+    windowed = SeedEvidence(heading_step="odometry", windowed=True)
+    correlation = Estimate.heading("correlation", -0.37, 0.07, diagnostics={"window_rad": 0.86}, seed=windowed)
+    violated = _misfit("27 % of the scan outside seen-free space")
     ests = [odo, compass, correlation, _icp_misfit(1.57, 3.95, misfit=violated)]
     contradicted = seed_audit(ests)
     assert set(contradicted) == {0, 2}  # the unreliable compass is not fused anyway
-    assert contradicted[2] == f"searched around the odometry seed, contradicted by icp: {violated}"
+    assert contradicted[2] == f"searched around the odometry seed, contradicted by icp: {violated.reason}"
     assert set(seed_audit(ests, drop_seeded=False)) == {0}
     # a heading found without a seed (the whole panorama searched) stands on its own
-    blind = Estimate.heading("correlation", -0.37, 0.07, diagnostics={"seeded": False})
+    blind = Estimate.heading("correlation", -0.37, 0.07, seed=SeedEvidence())
     assert set(seed_audit([odo, compass, blind, ests[3]])) == {0}

@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -68,6 +68,7 @@ from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
+from factorloc.verdicts import SeedEvidence
 from factorloc.vision import keypoints as kp
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
@@ -361,13 +362,28 @@ def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None
 
 
 def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:
+    """θ2 with the typed :class:`~factorloc.verdicts.SeedEvidence` of what seeded it (heading window, position)."""
+    est = _measure(prepared, query, hypotheses, config)
+    seed = _seed(hypotheses, prepared.theta_reference_rad)
+    windowed = seed is not None and max(config.min_window_rad, config.window_n_sigma * seed[1]) < math.pi
+    position = position_seed(hypotheses) if prepared.depth is not None else None
+    h, p = hypotheses.heading(), hypotheses.position()
+    evidence = SeedEvidence(
+        position_step=p[4] if position is not None and p is not None else None,
+        heading_step=h[2] if windowed and h is not None else None,
+        windowed=windowed,
+    )
+    return replace(est, seed=evidence)
+
+
+def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:
     seed = _seed(hypotheses, prepared.theta_reference_rad)
     window = None
     if seed is not None:
         window = max(config.min_window_rad, config.window_n_sigma * seed[1])
         if window >= math.pi:
             window = None
-    base = {"seeded": window is not None, "window_rad": window, "detector": config.detector}
+    base = {"window_rad": window, "detector": config.detector}
     if prepared.problem:
         return _unreliable(prepared, seed, f"reference: {prepared.problem}", **base)
     strips, dropped = query_strips(query, prepared.grid)

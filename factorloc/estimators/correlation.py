@@ -55,7 +55,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import cv2
@@ -66,6 +66,7 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.estimators.compass import query_strips
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
+from factorloc.verdicts import SeedEvidence
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
@@ -399,6 +400,20 @@ def _reachable_columns(
 
 
 def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses, config: CorrelationConfig) -> Estimate:
+    """θ3 with the typed :class:`~factorloc.verdicts.SeedEvidence` of what seeded it (heading window, position)."""
+    est = _measure(prepared, query, hypotheses, config)
+    h, p = hypotheses.heading(), hypotheses.position()
+    windowed = h is not None and max(config.min_window_rad, config.window_n_sigma * h[1]) < math.pi
+    position = position_seed(hypotheses) if prepared.depth is not None else None
+    evidence = SeedEvidence(
+        position_step=p[4] if position is not None and p is not None else None,
+        heading_step=h[2] if windowed and h is not None else None,
+        windowed=windowed,
+    )
+    return replace(est, seed=evidence)
+
+
+def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses, config: CorrelationConfig) -> Estimate:
     h = hypotheses.heading()
     seed = None
     if h is not None:
@@ -406,7 +421,7 @@ def _estimate(prepared: PreparedCorrelation, query: Query, hypotheses: Hypothese
         if half < math.pi:
             seed = (float(wrap_angle(h[0] - prepared.theta_reference_rad)), half)
     theta_fallback = seed[0] if seed is not None else 0.0
-    base: dict[str, Any] = {"seeded": seed is not None, "window_rad": None if seed is None else seed[1]}
+    base: dict[str, Any] = {"window_rad": None if seed is None else seed[1]}
     if prepared.problem:
         return _unreliable(prepared, theta_fallback, f"reference: {prepared.problem}", **base)
     strips, dropped = query_strips(query, prepared.grid)

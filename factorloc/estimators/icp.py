@@ -66,6 +66,7 @@ from factorloc.registration.scan2d import (
     profile_and_violation,
 )
 from factorloc.types import Estimate, Query, Reference
+from factorloc.verdicts import ROUNDING_TOLERANCE, Check, SeedEvidence, Unit
 
 log = logging.getLogger(__name__)
 
@@ -696,9 +697,13 @@ def _overlap_fitness(
 
 
 def constraint_strength(result: IcpResult) -> float:
-    """Smallest eigenvalue of the mean weighted normal scatter ``Σ wᵢ nᵢnᵢᵀ / Σ wᵢ``.
+    """Smallest eigenvalue of the mean weighted normal scatter ``Σ wᵢ nᵢnᵢᵀ / Σ wᵢ``, in [0, 0.5].
 
-    0 for one wall or a corridor without features, 0.5 for a round room.
+    0 for one wall or a corridor without features, 0.5 for a round room. The scatter is positive
+    semi-definite, so the eigenvalue is ≥ 0 in theory; for one straight wall it is exactly 0, and rounding
+    leaves it at about ±1e-16 depending on the instruction set. Values within
+    :data:`~factorloc.verdicts.ROUNDING_TOLERANCE` of 0 are returned as 0, so that no verdict depends on the
+    sign of that rounding.
     """
     w = result.weights
     sw = float(w.sum()) if len(w) >= 3 else 0.0
@@ -708,7 +713,13 @@ def constraint_strength(result: IcpResult) -> float:
     h = result.hessian
     a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
     # smallest eigenvalue of [[a, b], [b, c]]
-    return 0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b)
+    lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return 0.0 if lam < ROUNDING_TOLERANCE else lam
+
+
+def _weak(strength: float, limit: float) -> bool:
+    """Whether a constraint strength is below ``limit`` beyond rounding (:data:`~factorloc.verdicts.ROUNDING_TOLERANCE`)."""
+    return strength < limit - ROUNDING_TOLERANCE
 
 
 def _largest_sigma_position(cov: np.ndarray) -> float:
@@ -764,7 +775,7 @@ def _judge(
     strength = constraint_strength(result) if strength is None else strength
     score = result.fitness - config.violation_weight * violation
     dominant = rival_ratio is not None
-    if strength < config.min_constraint and not (
+    if _weak(strength, config.min_constraint) and not (
         dominant and rival_ratio < config.global_degenerate_ratio and score >= config.global_degenerate_min_score
     ):
         problems.append(f"degenerate geometry: constraint {strength:.3f} < {config.min_constraint:.3f} (one wall or a corridor)")
@@ -772,7 +783,7 @@ def _judge(
         problems.append(f"{100 * violation:.0f} % of points in seen-free space > {100 * config.max_violation:.0f} %")
     low_ok = (
         dominant
-        and strength >= config.min_constraint
+        and not _weak(strength, config.min_constraint)
         and rival_ratio < config.global_low_score_ratio
         and score >= config.global_low_min_score
     )
@@ -780,7 +791,7 @@ def _judge(
     overlap_ok = (
         dominant
         and overlap is not None
-        and strength >= config.min_constraint
+        and not _weak(strength, config.min_constraint)
         and overlap[0] >= config.global_overlap_min_fitness
         and rival_ratio < config.global_overlap_rival_ratio
         and score >= config.global_overlap_min_score
@@ -931,14 +942,14 @@ def estimate(
     Returns
     -------
     Estimate
-        Full (x, y, θ) world-frame estimate with a 3×3 covariance; diagnostics:
+        Full (x, y, θ) world-frame estimate with a 3×3 covariance. When seeded, ``seed`` holds the typed
+        evidence the pipeline's seed audit reads (:func:`_seed_checks`: a failed check means the scan refutes
+        the seed; see :func:`factorloc.gating.seed_misfit`). Diagnostics:
         ``fitness``, ``rmse_m``, ``chamfer_m``, ``iterations``, ``n_inliers``,
-        ``used_global_init``, ``seeded``, ``violation`` (free-space; NaN when not computed because the
+        ``used_global_init``, ``violation`` (free-space; NaN when not computed because the
         seeded result already failed a cheaper test), ``constraint``, ``global_score``, ``rival_score``,
         ``sigma_chamfer_m`` (the patent's isotropic σ), ``T_reference_query``; ``seeded_fitness`` and
-        ``seeded_violation`` (the seeded attempt's, kept when a global result replaces it), ``seed_misfit`` (when
-        seeded: why the scan refutes the seed, else ""; the pipeline's seed audit reads only this, see
-        :func:`_seed_misfit` and :func:`factorloc.gating.seed_misfit`), and after a global initialization
+        ``seeded_violation`` (the seeded attempt's, kept when a global result replaces it), and after a global initialization
         ``overlap_fitness`` / ``overlap_points`` (the fitness over the points each sensor could have seen, the
         smaller direction, and that count; without a position seed it enters the verdict, see
         ``IcpConfig.global_overlap_min_fitness``) and, without a position seed, ``rival_overlap_fitness`` (the best
@@ -992,7 +1003,7 @@ def estimate(
     # a seeded failure due to degenerate geometry is not cured by searching elsewhere: the scan is the same. But a
     # seeded ICP that barely overlaps (a kidnapped robot's seed) matched a few points of one wall: its weak
     # constraint says nothing about the scan
-    degenerate = result is not None and strength < config.min_constraint and result.fitness >= config.min_fitness
+    degenerate = result is not None and _weak(strength, config.min_constraint) and result.fitness >= config.min_fitness
     if degenerate and config.global_init:
         # ... unless the seeded alignment is inconsistent with the reference (points in space it saw empty): then the
         # seed itself is in doubt (a kidnapped robot in a corridor), and only then may a global solution overturn it
@@ -1046,11 +1057,11 @@ def estimate(
                 ov = _overlap_fitness(prepared, pts, profile, g.T_target_source, config)[0]
                 if (
                     config.global_ignore_degenerate_rivals
-                    and g_strength >= config.min_constraint
+                    and not _weak(g_strength, config.min_constraint)
                     and ov >= config.global_overlap_min_fitness
                 ):
                     g_rival, g_rival_T = max(
-                        ((sc, T) for sc, T, st in g_rivals if st >= config.min_constraint),
+                        ((sc, T) for sc, T, st in g_rivals if not _weak(st, config.min_constraint)),
                         key=lambda x: x[0],
                         default=(0.0, None),
                     )
@@ -1095,7 +1106,7 @@ def estimate(
             math.pi,
             reliable=False,
             reason=reason,
-            diagnostics={"used_global_init": False, "seeded": False},
+            diagnostics={"used_global_init": False},
         )
     T_world_query = T_wr * result.T_target_source
     cov_world = rotate_covariance(cov, T_wr.theta)
@@ -1108,7 +1119,12 @@ def estimate(
         jump = float(np.hypot(*e)) > config.seed_jump_margin_m + 3.0 * max(pos[2], pos[3])
         # only a *seeded* ICP that left its seed is suspect (it slid or converged to a wrong minimum); a global
         # solution that is good on its own criteria and disagrees with the seed is left to the consistency gate
-        if not used_global and verdict.reliable and seed_d2 > limit and (jump or strength < config.seed_check_max_constraint):
+        if (
+            not used_global
+            and verdict.reliable
+            and seed_d2 > limit
+            and (jump or _weak(strength, config.seed_check_max_constraint))
+        ):
             verdict = _Verdict(False, f"inconsistent with the {pos[4]} seed: Mahalanobis² {seed_d2:.1f} > {limit:.1f}")
             seed_inconsistent = True
     s_ch = max(config.chamfer_scale * result.chamfer_m, 1e-4)
@@ -1121,7 +1137,6 @@ def estimate(
         "n_inliers": result.n_inliers,
         "n_query_points": int(len(pts)),
         "used_global_init": used_global,
-        "seeded": seeded,
         "violation": violation,
         "constraint": strength,
         "seed_mahalanobis2": seed_d2,
@@ -1140,17 +1155,24 @@ def estimate(
         )
         if overlap_pair is not None:
             diagnostics["rival_overlap_fitness"] = overlap_pair[1]
+    evidence = None
     if seeded:
-        # the seed audit of the pipeline (factorloc.gating) reads this and only this ("": no contradiction)
-        diagnostics["seed_misfit"] = _seed_misfit(seeded_fit, used_global, verdict.reliable, len(pts), config)
-        if seed_inconsistent and not diagnostics["seed_misfit"] and _fits_on_its_own(result, violation, strength, config):
+        # the seed audit of the pipeline (factorloc.gating) reads this and only this (a failed check: contradiction)
+        seed_checks = _seed_checks(seeded_fit, used_global, verdict.reliable, len(pts), config)
+        if seed_inconsistent and all(c.passed for c in seed_checks) and _fits_on_its_own(result, violation, strength, config):
             # the seeded ICP left its seed for an alignment that explains the scan well on its own criteria (fitness,
             # free space, constraint): one of the two is wrong, and the data cannot say which; the seed is not
             # confirmed, so it may not be fused as reliable either (a kidnapped robot's odometry, ~1 m off)
-            diagnostics["seed_misfit"] = (
-                f"the seeded alignment converged {float(np.hypot(*e)):.2f} m from the seed to a fit of its own "
-                f"(fitness {result.fitness:.2f}, Mahalanobis² {seed_d2:.1f})"
+            seed_checks += (
+                Check.flag(
+                    "icp.seed.stays_near",
+                    "the seeded alignment stays near its seed",
+                    False,
+                    note=f"it converged {float(np.hypot(*e)):.2f} m from the seed to a fit of its own "
+                    f"(fitness {result.fitness:.2f}, Mahalanobis² {seed_d2:.1f})",
+                ),
             )
+        evidence = SeedEvidence(position_step=pos[4], heading_step=head[2], windowed=False, checks=seed_checks)
     reason = f"{verdict.reason} ({seed_reason})" if seed_reason else verdict.reason
     if config.heading_only_when_degenerate and not verdict.reliable and seeded and not used_global and not seed_inconsistent:
         if math.isnan(violation):
@@ -1173,9 +1195,16 @@ def estimate(
                     reliable=True,
                     reason=f"across the walls and heading only (σ across {100 * sigma_across:.1f} cm): {reason}",
                     diagnostics=diagnostics,
+                    seed=evidence,
                 )
     return Estimate.pose(
-        "icp", T_world_query, covariance=cov_world, reliable=verdict.reliable, reason=reason, diagnostics=diagnostics
+        "icp",
+        T_world_query,
+        covariance=cov_world,
+        reliable=verdict.reliable,
+        reason=reason,
+        diagnostics=diagnostics,
+        seed=evidence,
     )
 
 
@@ -1185,12 +1214,15 @@ def _fits_on_its_own(result: IcpResult, violation: float, strength: float, confi
         result.fitness >= config.min_fitness
         and math.isfinite(violation)
         and violation <= config.max_violation
-        and strength >= config.min_constraint
+        and not _weak(strength, config.min_constraint)
     )
 
 
-def _seed_misfit(seeded_fit: tuple[float, float], used_global: bool, reliable: bool, n_points: int, config: IcpConfig) -> str:
-    """Why the scan refutes the position seed of a seeded ICP ("" when it does not): the one source of the seed audit.
+def _seed_checks(
+    seeded_fit: tuple[float, float], used_global: bool, reliable: bool, n_points: int, config: IcpConfig
+) -> tuple[Check, ...]:
+    """The checks of a seeded ICP's position seed against the scan (one failed: the scan refutes the seed); the one
+    source of the seed audit.
 
     Either the seeded alignment put more than ``max_violation`` of a scan into space the other sensor saw empty, or
     it failed for a reason other than degenerate geometry (a degenerate seeded fit does not search elsewhere: the
@@ -1212,16 +1244,28 @@ def _seed_misfit(seeded_fit: tuple[float, float], used_global: bool, reliable: b
     Intel local relations: one confidently-wrong result flagged instead (0.17 → 0.11 %), ACES unchanged.
     """
     s_fit, s_v = seeded_fit
-    if not math.isnan(s_v) and s_v > config.max_violation:
-        return (
-            f"seeded alignment puts {100 * s_v:.0f} % of the scan in space the reference saw empty "
-            f"> {100 * config.max_violation:.0f} %"
+    checks: list[Check] = []
+    if not math.isnan(s_v):
+        checks.append(
+            Check.at_most(
+                "icp.seed.free_space",
+                "share of the scan the seeded alignment puts in space the reference saw empty",
+                s_v,
+                config.max_violation,
+                Unit.FRACTION,
+            )
         )
-    if used_global and not reliable:
-        return (
-            f"{n_points} query points fit nowhere near the seed (seeded alignment: fitness {s_fit:.2f}; global search unreliable)"
+    checks.append(
+        Check.flag(
+            "icp.seed.fits_near",
+            "the scan fits near the seed",
+            not (used_global and not reliable),
+            note=f"{n_points} query points; seeded alignment fitness {s_fit:.2f}; global search unreliable"
+            if used_global and not reliable
+            else "",
         )
-    return ""
+    )
+    return tuple(checks)
 
 
 @lru_cache(maxsize=8)

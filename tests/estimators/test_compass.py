@@ -68,7 +68,7 @@ def test_seeding_by_theta1_shrinks_the_candidate_set_and_keeps_the_answer(synthe
     seed = Hypotheses((Estimate.pose("odometry", Pose2(2.0, -1.0, theta_world + 0.02), 0.01, 0.01, 0.03),))
     seeded = compass.estimate(ref, q, seed, prepared=prepared)
     assert blind.reliable and seeded.reliable
-    assert not blind.diagnostics["seeded"] and seeded.diagnostics["seeded"]
+    assert not blind.seed.windowed and seeded.seed.windowed and seeded.seed.heading_step == "odometry"
     assert seeded.diagnostics["window_rad"] == pytest.approx(math.radians(5.16), abs=1e-3)  # 3σ + nothing below 3°
     assert seeded.diagnostics["candidates"] < 0.5 * blind.diagnostics["candidates"]
     for est in (blind, seeded):  # world frame: the reference's heading is added

@@ -144,18 +144,19 @@ def test_a_distant_global_solution_does_not_overturn_a_free_space_consistent_see
         assert _errors(case, est)[0] > 0.3  # the global solution was wrong
         # not refuted, but not confirmed either: the step itself reports it, and the pipeline's seed audit reads
         # exactly that (one source) — neither the seed nor the global solution is fused
-        assert "fit nowhere near the seed" in est.diagnostics["seed_misfit"]
+        assert est.seed.contradicted and [c.code for c in est.seed.checks if not c.passed] == ["icp.seed.fits_near"]
         odo = Estimate.pose("odometry", case.truth, 0.05, 0.05, math.radians(2))
-        assert seed_audit([odo, est]) == {0: f"seed contradicted by icp: {est.diagnostics['seed_misfit']}"}
+        assert seed_audit([odo, est]) == {0: f"seed contradicted by icp: {est.seed.reason}"}
 
 
 def test_a_seeded_icp_reports_its_seed_audit_verdict_itself(seeded_results) -> None:
-    # the seed audit's one source: every seeded estimate carries "seed_misfit", empty unless its scan refutes the seed
+    # the seed audit's one source: every seeded estimate carries typed seed evidence, contradicted only when its scan
+    # refutes the seed
     for _, est in seeded_results:
-        misfit = est.diagnostics["seed_misfit"]
+        assert est.seed is not None and est.seed.position_step == "odometry"
         refuted = est.diagnostics["seeded_violation"] > 0.12 or (est.diagnostics["used_global_init"] and not est.reliable)
-        assert bool(misfit) == refuted
-    assert sum(not e.diagnostics["seed_misfit"] for _, e in seeded_results) >= 0.5 * len(seeded_results)
+        assert est.seed.contradicted == refuted
+    assert sum(not e.seed.contradicted for _, e in seeded_results) >= 0.5 * len(seeded_results)
 
 
 def test_unreliable_estimates_say_why(seeded_results) -> None:
