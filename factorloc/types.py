@@ -367,14 +367,32 @@ class Panorama(_ImageSize):
     looks forward (azimuth 0). Rows are cylindrical: row ``v`` looks at
     elevation ``atan((H/2 - v) / f)`` with ``f = (H/2) / tan(fov_v_rad/2)``,
     the horizon at row H/2.
+
+    ``seen_columns`` (bool, shape (W,)) marks the columns that hold imagery;
+    None means all of them. A panorama stitched from a turning pinhole camera
+    leaves columns it never saw: the camera steps ignore them (no keypoint,
+    no correlation there) instead of matching blank pixels.
     """
 
     image_bgr: np.ndarray
     fov_v_rad: float = math.radians(60.0)
     azimuth_col0_rad: float = math.pi
+    seen_columns: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_bgr", bgr_image("Panorama.image_bgr", self.image_bgr))
+        if self.seen_columns is not None:
+            seen = np.asarray(self.seen_columns)
+            if seen.dtype != np.bool_ or seen.shape != (self.image_bgr.shape[1],):
+                raise InputError(
+                    f"Panorama.seen_columns must be a bool array of shape ({self.image_bgr.shape[1]},) (one per column), "
+                    f"got dtype {seen.dtype} shape {seen.shape}"
+                )
+            if not seen.any():
+                raise InputError("Panorama.seen_columns marks no column as seen: the panorama holds no imagery")
+            seen = seen.copy()
+            seen.setflags(write=False)
+            object.__setattr__(self, "seen_columns", seen)
         fov = positive_float("Panorama.fov_v_rad", self.fov_v_rad)
         if fov >= math.pi:
             raise InputError(f"Panorama.fov_v_rad must be < π (cylindrical), got {fov!r}")
