@@ -34,8 +34,9 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
 from factorloc.sim.generate import GeneratorConfig, render_reference
+from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import simulate_odometry, waypoint_trajectory
-from factorloc.sim.render import render_camera, render_cloud, render_scan
+from factorloc.sim.render import render_camera, render_cloud
 from factorloc.sim.world import World
 from factorloc.types import Odometry, PointCloud, Query
 

@@ -35,6 +35,7 @@ import numpy as np
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
+from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import DriftModel, random_walk, simulate_odometry
 from factorloc.sim.render import (
     DepthCamera,
@@ -43,7 +44,6 @@ from factorloc.sim.render import (
     render_cloud,
     render_cloud_360,
     render_panorama,
-    render_scan,
 )
 from factorloc.sim.world import World
 from factorloc.types import PointCloud, Query, Reference
