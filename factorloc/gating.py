@@ -28,14 +28,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from functools import lru_cache
 
 import numpy as np
-from scipy.stats import chi2
 
 from factorloc.fusion.product import ProductFusion
 from factorloc.geometry import wrap_angle
-from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
+from factorloc.stats import chi2_quantile, sym2_eigenvalues
+from factorloc.types import FULL, HEADING, POSITION, Component, Estimate, component_indices
 
 GROUPS: dict[str, tuple[Component, ...]] = {"position": POSITION, "heading": HEADING}
 
@@ -51,7 +50,7 @@ def unconstrained_position(covariance: np.ndarray, unknown_sigma_m: float) -> bo
     a, b, c = float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1])
     if not (math.isfinite(a) and math.isfinite(b) and math.isfinite(c)):
         return True
-    largest = 0.5 * (a + c) + math.sqrt(0.25 * (a - c) ** 2 + b * b)
+    _, largest = sym2_eigenvalues(a, b, c)
     return largest >= (0.5 * unknown_sigma_m) ** 2
 
 
@@ -78,10 +77,7 @@ def sigma_gate(
     return (not problems, "; ".join(problems))
 
 
-@lru_cache(maxsize=64)
-def chi2_threshold(probability: float, dof: int) -> float:
-    """The χ² quantile with ``dof`` degrees of freedom."""
-    return float(chi2.ppf(probability, dof))
+chi2_threshold = chi2_quantile
 
 
 def mahalanobis_sq(estimate: Estimate, others: Sequence[Estimate]) -> float:
@@ -91,7 +87,7 @@ def mahalanobis_sq(estimate: Estimate, others: Sequence[Estimate]) -> float:
     the difference of the means (θ wrapped) and Σ_o the fused covariance.
     """
     fused = ProductFusion().fuse(others)
-    idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in estimate.components]
+    idx = component_indices(estimate.components)
     err = np.array(estimate.values) - fused.pose.as_array()[idx]
     if estimate.measures(Component.THETA):
         err[-1] = wrap_angle(err[-1])

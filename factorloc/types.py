@@ -44,12 +44,18 @@ HEADING: tuple[Component, ...] = (Component.THETA,)
 POSITION: tuple[Component, ...] = (Component.X, Component.Y)
 FULL: tuple[Component, ...] = (Component.X, Component.Y, Component.THETA)
 _ALLOWED_COMPONENTS = {HEADING: "heading", POSITION: "position", FULL: "full"}
-_INDEX = {Component.X: 0, Component.Y: 1, Component.THETA: 2}
+#: Position of each component in an (x, y, θ) vector or 3×3 covariance: the one index map.
+COMPONENT_INDEX: Mapping[Component, int] = MappingProxyType({Component.X: 0, Component.Y: 1, Component.THETA: 2})
+
+
+def component_indices(components: Sequence[Component | str]) -> list[int]:
+    """Positions of ``components`` in (x, y, θ)."""
+    return [COMPONENT_INDEX[Component(c)] for c in components]
 
 
 def _components(value: Any) -> tuple[Component, ...]:
     try:
-        comps = tuple(sorted({Component(c) for c in value}, key=_INDEX.__getitem__))
+        comps = tuple(sorted({Component(c) for c in value}, key=COMPONENT_INDEX.__getitem__))
     except (TypeError, ValueError) as exc:
         raise InputError(f"Estimate.components must be drawn from 'x', 'y', 'theta', got {value!r}") from exc
     if comps not in _ALLOWED_COMPONENTS:

@@ -36,7 +36,7 @@ from factorloc.config import GatingConfig
 from factorloc.errors import InputError
 from factorloc.gating import consistency_gate
 from factorloc.geometry import Pose2, rot2
-from factorloc.types import FULL, Component, Estimate, Query, StepReport
+from factorloc.types import FULL, Component, Estimate, Query, StepReport, component_indices
 
 #: Name of the odometry step, whose absolute estimate is replaced by the motion.
 ODOMETRY_STEP = "odometry"
@@ -173,7 +173,7 @@ def log_likelihood(
     gives the pure Gaussian.
     """
     p = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in estimate.components]
+    idx = component_indices(estimate.components)
     r = np.asarray(estimate.values)[None, :] - p[:, idx]
     if estimate.measures(Component.THETA):
         r[:, -1] = np.mod(r[:, -1] + math.pi, 2.0 * math.pi) - math.pi

@@ -38,7 +38,7 @@ from factorloc.config import GatingConfig
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
 from factorloc.geometry import Pose2
-from factorloc.types import Component, Estimate, Query, StepReport
+from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 
 
 class MarkovGridLocalization:
@@ -152,7 +152,7 @@ class MarkovGridLocalization:
         quant = np.array([self.resolution_m**2, self.resolution_m**2, self.dtheta**2]) / 12.0
         for e in estimates:
             # the likelihood of a cell, not of its centre: the estimate's covariance plus the cell's extent
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in e.components]
+            idx = component_indices(e.components)
             cell = Estimate(e.step, e.components, e.values, np.asarray(e.covariance) + np.diag(quant[idx]))
             area = (self.bounds_xy[2] - self.bounds_xy[0]) * (self.bounds_xy[3] - self.bounds_xy[1])
             log_b += log_likelihood(cell, self._centres, self.outlier_probability, area).reshape(self.belief.shape)

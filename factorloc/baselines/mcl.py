@@ -57,7 +57,7 @@ from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
 from factorloc.fusion.product import ProductFusion
 from factorloc.geometry import Pose2
-from factorloc.types import Component, Estimate, Query, StepReport
+from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -253,7 +253,7 @@ class MonteCarloLocalization:
         mean, cov = weighted_mean_covariance(self.particles, self.weights)
         d2, dof = 0.0, 0
         for e in estimates:
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in e.components]
+            idx = component_indices(e.components)
             r = np.asarray(e.values) - mean[idx]
             if e.measures(Component.THETA):
                 r[-1] = _wrap(r[-1])

@@ -47,7 +47,7 @@ from factorloc.config import Config
 from factorloc.errors import InputError
 from factorloc.estimators.base import Step
 from factorloc.evaluation import metrics
-from factorloc.fusion.base import FusionStrategy, SequentialStrategy
+from factorloc.fusion.base import FusionStrategy, SequentialStrategy, mark_undetermined
 from factorloc.geometry import Pose2
 from factorloc.pipeline import Localizer, fuse
 from factorloc.types import Localization, Query, Reference, StepReport, StepStatus
@@ -444,11 +444,7 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
         cov = np.array(fused.covariance, dtype=np.float64)
         if cov.shape != (3, 3):
             raise InputError(f"strategy {strategy.name!r} returned a covariance of shape {cov.shape}, expected 3×3")
-        for c in fused.undetermined:
-            i = {"x": 0, "y": 1, "theta": 2}[c.value]
-            cov[i, :] = 0.0
-            cov[:, i] = 0.0
-            cov[i, i] = math.inf
+        cov = mark_undetermined(cov, fused.undetermined)
         out.append(
             QueryResult(
                 qr.index,
