@@ -54,9 +54,9 @@ from factorloc.evaluation import metrics
 from factorloc.evaluation.runner import Case, EvaluationSet, HierarchyRun, evaluate, evaluation_set, run_hierarchy
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
-from factorloc.gating import consistency_gate, seed_audit
+from factorloc.gating import StepRun, gate
 from factorloc.geometry import Pose2, wrap_angle
-from factorloc.types import Estimate, Panorama, PointCloud, Query, Reference, Scan, StepStatus
+from factorloc.types import Panorama, PointCloud, Query, Reference, Scan, StepStatus
 
 log = logging.getLogger(__name__)
 
@@ -677,20 +677,6 @@ def _se2_error(est: Pose2, true: Pose2) -> tuple[float, float]:
 # --------------------------------------------------------------------------
 # GTSAM vs product
 # --------------------------------------------------------------------------
-def _gated_inputs(reports: Sequence[Any], probability: float, consistency: bool, audit: bool = True) -> list[Estimate]:
-    ran = [r.estimate for r in reports if r.estimate is not None]
-    contradicted = seed_audit(ran) if audit else {}
-    reliable = [e for i, e in enumerate(ran) if e.reliable and i not in contradicted]
-    if not consistency:
-        return reliable
-    out = []
-    for v in consistency_gate(reliable, probability):
-        part = v.accepted_estimate()
-        if part is not None:
-            out.append(part)
-    return out
-
-
 def bench_fusion(run: HierarchyRun, *, settings: BenchSettings = BenchSettings()) -> dict[str, Any]:
     """GTSAM graph vs closed-form product on each query's gated estimates: time ratio and agreement.
 
@@ -703,7 +689,7 @@ def bench_fusion(run: HierarchyRun, *, settings: BenchSettings = BenchSettings()
     graph, product = GraphFusion(), ProductFusion()
     tg, tp, dpos, dth, dvar, coupled = [], [], [], [], [], []
     for q in run.runs:
-        inputs = _gated_inputs(q.reports, gating.consistency_probability, gating.consistency, gating.seed_audit)
+        inputs = gate([StepRun.of_report(r) for r in q.reports], gating).accepted
         if not inputs:
             continue
         times = {}

@@ -15,6 +15,7 @@ from typing import Annotated, Any
 import typer
 from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 import factorloc
@@ -221,10 +222,6 @@ def evaluation_summary_table(out: dict[str, Any], title: str = "Fused pose") -> 
     return table
 
 
-def _short(text: str, n: int = 60) -> str:
-    return text if len(text) <= n else text[: n - 1] + "…"
-
-
 def evaluation_steps_table(out: dict[str, Any], title: str = "Steps") -> Table:
     """Per step: availability (reliable, fused), its own accuracy, false positives, time, and why it was not fused."""
     table = _table(
@@ -249,12 +246,13 @@ def evaluation_steps_table(out: dict[str, Any], title: str = "Steps") -> Table:
 
 
 def gate_reasons_text(out: dict[str, Any], per_step: int = 2) -> str:
-    """The most frequent reasons each step was not fused (rich markup, one line per reason)."""
+    """The most frequent rules that kept each step from being fused, with the range of their values (rich markup)."""
     lines = []
     for name, s in out["steps"].items():
-        for reason, count in list((s.get("gate_reasons") or {}).items())[:per_step]:
-            lines.append(f"  [bold]{name}[/] [dim]×{count}[/] {_short(reason, 90)}")
-    return "\n".join(["[bold]Why steps were not fused[/] (most frequent, numbers masked as #)", *lines]) if lines else ""
+        rules = [t for t in s.get("gate_rules") or () if t["status"] != "skipped"]
+        for t in rules[:per_step]:
+            lines.append(f"  [bold]{name}[/] [dim]×{t['count']}[/] {t['status']}: {escape(t['text'])} [dim]({t['code']})[/]")
+    return "\n".join(["[bold]Why steps were not fused[/] (most frequent rules, with their values)", *lines]) if lines else ""
 
 
 def _load_config(path: Path | None) -> factorloc.Config | None:

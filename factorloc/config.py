@@ -22,30 +22,7 @@ from factorloc.estimators.compass import CompassConfig
 from factorloc.estimators.correlation import CorrelationConfig
 from factorloc.estimators.icp import IcpConfig
 from factorloc.estimators.odometry import OdometryConfig
-
-
-@dataclass(frozen=True)
-class GatingConfig:
-    """The pipeline's gates, applied after the estimators' own reliability verdicts.
-
-    ``consistency`` enables the Mahalanobis test of each reliable estimate
-    against the fusion of the others; an estimate whose squared distance
-    exceeds the χ² quantile ``consistency_probability`` (for its number of
-    components) is rejected, worst first, until all agree. Between two that
-    disagree equally, the earlier (cheaper, less exact) step is rejected.
-
-    ``seed_audit`` rejects a reliable estimate that a later step's data
-    contradict as a seed (:func:`factorloc.gating.seed_audit`: e.g. a
-    kidnapped robot's odometry, around which the scan fits nowhere).
-    """
-
-    consistency: bool = True
-    consistency_probability: float = 0.999
-    seed_audit: bool = True
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.consistency_probability < 1.0:
-            raise ConfigError(f"gating.consistency_probability must be in (0, 1), got {self.consistency_probability!r}")
+from factorloc.gating.config import GatingConfig
 
 
 @dataclass(frozen=True)

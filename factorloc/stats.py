@@ -47,8 +47,12 @@ def sym2_eigenvalues(a: float, b: float, c: float) -> tuple[float, float]:
 
 
 def largest_sigma(covariance: np.ndarray) -> float:
-    """Square root of the largest eigenvalue of a covariance's 2×2 position block (m), clamped at 0."""
-    _, hi = sym2_eigenvalues(float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1]))
+    """Square root of the largest eigenvalue of a covariance's 2×2 position block (m), clamped at 0.
+
+    Without an x–y term it is the larger of the two σ exactly (the closed form would round it).
+    """
+    a, b, c = float(covariance[0, 0]), float(covariance[0, 1]), float(covariance[1, 1])
+    hi = max(a, c) if b == 0.0 else sym2_eigenvalues(a, b, c)[1]
     return math.sqrt(max(hi, 0.0))
 
 

@@ -620,17 +620,44 @@ class StepStatus(StrEnum):
 
 @dataclass(frozen=True)
 class StepReport:
-    """One step of one localization: its estimate, its fate, and its run time (s)."""
+    """One step of one localization: its estimate, its fate, why, and its run time (s).
+
+    ``checks`` are the typed verdicts that decided ``status`` (:func:`factorloc.gating.gate`): the estimate's
+    failed checks when ``UNRELIABLE``, the gate's when ``INCONSISTENT`` or (partly) ``FUSED``; ``reason`` is
+    the sentence rendered from them (:func:`factorloc.gating.report_reason`). Counts by rule read
+    :attr:`rule_codes`, never the reason.
+    """
 
     name: str
     status: StepStatus
     estimate: Estimate | None = None
     reason: str = ""
     seconds: float = 0.0
+    checks: tuple[Check, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "status", StepStatus(self.status))
+        checks = tuple(self.checks)
+        for c in checks:
+            if not isinstance(c, Check):
+                raise InputError(f"StepReport({self.name}).checks must hold factorloc.verdicts.Check, got {type(c).__name__}")
+        object.__setattr__(self, "checks", checks)
 
     @property
     def fused(self) -> bool:
         return self.status is StepStatus.FUSED
+
+    @property
+    def rule_codes(self) -> tuple[str, ...]:
+        """Why the step was not (wholly) fused, as rule codes: its failed checks' codes.
+
+        A report without failed checks that is not fused counts under ``"<step>.<status>"`` (``"compass.skipped"``,
+        ``"icp.failed"``, or ``"<step>.unreliable"`` for an estimator that gives a reason but no checks).
+        """
+        codes = tuple(c.code for c in self.checks if not c.passed)
+        if codes or self.status is StepStatus.FUSED:
+            return codes
+        return (f"{self.name}.{self.status.value}",)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -639,6 +666,7 @@ class StepReport:
             "fused": self.fused,
             "reason": self.reason,
             "seconds": self.seconds,
+            "checks": [c.to_dict() for c in self.checks],
             "estimate": None if self.estimate is None else self.estimate.to_dict(),
         }
 
@@ -651,6 +679,7 @@ class Localization:
     A component that no fused estimate constrains is *under-determined*: it
     is listed in ``undetermined``, its variance is ``inf`` and its value in
     ``pose`` is a placeholder (the seed, or 0) that must not be used.
+    ``checks`` are the gate's rules on the fused result (``gate.undetermined.position``).
     """
 
     pose: Pose2
@@ -659,6 +688,7 @@ class Localization:
     fused_with: str
     undetermined: tuple[Component, ...] = ()
     config: Config | None = None
+    checks: tuple[Check, ...] = ()
 
     @property
     def sigmas(self) -> np.ndarray:

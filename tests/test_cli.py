@@ -92,7 +92,7 @@ def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Pat
     ):
         assert key in out and key in out["by_fault"]["blur"], key
     assert out["queries"] == 4 and out["steps"]["icp"]["reliable_rate"] == 1.0
-    assert out["steps"]["compass"]["gate_reasons"] == {"skipped: inputs absent": 4}
+    assert out["steps"]["compass"]["gate_reasons"] == {"skipped: compass.skipped": 4}
     assert out["position_rmse_m"] < 0.01  # exact scans: ICP recovers the pose; the 5 cm odometry error is gone
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
         "availability.png",

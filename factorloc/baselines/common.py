@@ -32,9 +32,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from factorloc._validate import nonnegative_float, positive_float
-from factorloc.config import GatingConfig
 from factorloc.errors import InputError
-from factorloc.gating import consistency_gate
+from factorloc.gating import GatingConfig, consistency_gate
 from factorloc.geometry import Pose2, rot2
 from factorloc.types import FULL, Component, Estimate, Query, StepReport, component_indices
 
@@ -123,7 +122,7 @@ def gated(estimates: Sequence[Estimate], gating: GatingConfig | None) -> tuple[l
     ests = list(estimates)
     if gating is None or not gating.consistency or len(ests) < 2:
         return ests, []
-    verdicts = consistency_gate(ests, gating.consistency_probability)
+    verdicts = consistency_gate(ests, gating.consistency_probability, gating.full_pose_whole)
     accepted = [p for p in (v.accepted_estimate() for v in verdicts) if p is not None]
     rejected = [v.estimate for v in verdicts if not v.fully_accepted]
     return accepted, rejected

@@ -29,9 +29,9 @@ Example
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
-import re
 import resource
 import sys
 import time
@@ -47,9 +47,11 @@ from factorloc.config import Config
 from factorloc.errors import InputError
 from factorloc.estimators.base import Step
 from factorloc.evaluation import metrics
+from factorloc.evaluation.reasons import tally_reasons
 from factorloc.fusion.base import FusionStrategy, SequentialStrategy, mark_undetermined
+from factorloc.gating import StepRun, gate
 from factorloc.geometry import Pose2
-from factorloc.pipeline import Localizer, fuse
+from factorloc.pipeline import Localizer, fuse_gated
 from factorloc.types import Localization, Query, Reference, StepReport, StepStatus
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -329,25 +331,6 @@ class QueryResult:
         return err
 
 
-def _normalize_reason(reason: str) -> str:
-    """A reason with its numbers replaced by ``#`` so that equal causes count together."""
-    text = re.sub(r"(?<![^\W\d_])[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?", "#", reason)  # not "θ2", "χ²"
-    return re.sub(r"\s+", " ", text).strip() or "(no reason given)"
-
-
-def _merge(original: tuple[StepReport, ...], refused: Localization) -> tuple[StepReport, ...]:
-    """The re-gated reports of ``refused`` with the steps' original run times and skipped/failed reports."""
-    it = iter(refused.steps)
-    out = []
-    for r in original:
-        if r.estimate is None:
-            out.append(r)
-        else:
-            g = next(it)
-            out.append(StepReport(r.name, g.status, r.estimate, g.reason, r.seconds))
-    return tuple(out)
-
-
 def _distance(case: Case, reference: Reference) -> float:
     if case.distance_from_reference_m is not None:
         return float(case.distance_from_reference_m)
@@ -411,9 +394,9 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
     out = []
     overlaps = _view_overlaps(run)
     for qr in run.runs:
-        estimates = [r.estimate for r in qr.reports if r.estimate is not None]
         t0 = time.perf_counter()
-        loc = fuse(estimates, strategy=strategy, gating=run.config.gating)
+        gating = run.config.gating
+        loc = fuse_gated(gate([StepRun.of_report(r) for r in qr.reports], gating), strategy, gating=gating)
         dt = time.perf_counter() - t0
         out.append(
             QueryResult(
@@ -423,7 +406,7 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
                 qr.case.faults,
                 loc.pose,
                 np.array(loc.covariance),
-                _merge(qr.reports, loc),
+                loc.steps,
                 qr.steps_seconds + dt,
                 dt,
                 _distance(qr.case, run.dataset.reference_of(qr.case)),
@@ -675,11 +658,7 @@ class EvaluationReport:
         status = Counter(r.status.value if r is not None else "absent" for r in reports)
         reliable = np.array([r is not None and r.estimate is not None and r.estimate.reliable for r in reports], dtype=bool)
         seconds = np.array([r.seconds for r in reports if r is not None and r.status is not StepStatus.SKIPPED])
-        reasons = Counter(
-            f"{r.status.value}: {_normalize_reason(r.reason)}"
-            for r in reports
-            if r is not None and r.status is not StepStatus.FUSED
-        )
+        tallies = tally_reasons(reports)[:8]
         # the step's own accuracy and honesty, over its reliable estimates of queries with truth
         rows = [
             (metrics.values_of_estimate(r.estimate), metrics.covariance_of_estimate(r.estimate), q.truth.as_array())
@@ -730,7 +709,8 @@ class EvaluationReport:
             "status_rates": {s: status.get(s, 0) / n for s in [v.value for v in StepStatus]} if n else {},
             "latency_median_ms": lat["median"],
             "latency_p95_ms": lat["p95"],
-            "gate_reasons": dict(reasons.most_common(8)),
+            "gate_reasons": {t.key: t.count for t in tallies},
+            "gate_rules": [dataclasses.asdict(t) for t in tallies],
             "position_rmse_m": pos.rmse,
             "position_median_m": pos.median,
             "heading_rmse_deg": head.rmse,

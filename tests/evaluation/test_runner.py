@@ -15,6 +15,7 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.evaluation import Case, EvaluationSet, evaluate, run_hierarchy
 from factorloc.fusion.base import Fused
 from factorloc.types import Component
+from factorloc.verdicts import Check, Unit
 
 STABLE_KEYS = (
     "position_rmse_m",
@@ -55,13 +56,10 @@ class NoisyPoseStep:
         t = self.truth[query.id].as_array()
         v = t + self.error_scale * self.sigmas * self.rng.normal(size=3)
         reliable = self.blind_tag not in self.tags.get(query.id, ())
-        return Estimate.pose(
-            self.name,
-            Pose2.from_array(v),
-            *self.sigmas,
-            reliable=reliable,
-            reason="ok" if reliable else f"only {int(self.rng.integers(3, 9))} matches < 10",
+        matches = Check.at_least(
+            f"{self.name}.matches", "matches", 10 if reliable else int(self.rng.integers(3, 9)), 10, Unit.COUNT
         )
+        return Estimate.pose(self.name, Pose2.from_array(v), *self.sigmas, reliable=reliable, checks=(matches,))
 
 
 class HeadingStep:
@@ -146,8 +144,13 @@ def test_json_has_the_stable_keys_per_fault_and_per_step_and_is_strict_json() ->
     icp = out["steps"]["icp"]
     assert icp["reliable_rate"] == pytest.approx(8 / 12)
     assert out["by_fault"]["occlusion"]["steps"]["icp"]["reliable_rate"] == 0.0
-    # reasons are counted with their numbers masked, so 4 different match counts are one cause
-    assert icp["gate_reasons"] == {"unreliable: only # matches < #": 4}
+    # reasons are counted by rule code, so 4 different match counts are one cause, and the range of the counts is kept
+    assert icp["gate_reasons"] == {"unreliable: icp.matches": 4}
+    (rule,) = icp["gate_rules"]
+    assert (
+        rule["count"] == 4 and rule["limit_min"] == rule["limit_max"] == 10 and 3 <= rule["value_min"] <= rule["value_max"] <= 8
+    )
+    assert rule["text"] == f"matches {rule['value_min']:.0f}–{rule['value_max']:.0f} < 10"
     assert icp["status_rates"]["unreliable"] == pytest.approx(4 / 12)
     assert out["strategy"] == "graph" and out["scenario"] == "synthetic"
 
