@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -37,15 +37,28 @@ from factorloc.verdicts import Check
 log = logging.getLogger(__name__)
 
 
-def default_steps(config: Config) -> list[Step]:
-    """The patent's hierarchy, cheapest first, built from ``config`` (disabled steps left out)."""
-    steps: list[tuple[bool, Step]] = [
-        (config.odometry.enabled, OdometryStep(config.odometry)),
-        (config.compass.enabled, CompassStep(config.compass)),
-        (config.correlation.enabled, CorrelationStep(config.correlation)),
-        (config.icp.enabled, IcpStep(config.icp)),
-    ]
-    return [step for enabled, step in steps if enabled]
+#: The patent's hierarchy, cheapest first: the field of :class:`~factorloc.Config` that holds each step's
+#: sub-config, and the step class built from it (``StepClass(sub_config)``). A new estimator is one module,
+#: one field of the config and one entry here.
+STEPS: tuple[tuple[str, Callable[[Any], Step]], ...] = (
+    ("odometry", OdometryStep),
+    ("compass", CompassStep),
+    ("correlation", CorrelationStep),
+    ("icp", IcpStep),
+)
+
+
+def default_steps(config: Config, registry: Sequence[tuple[str, Callable[[Any], Step]]] = STEPS) -> list[Step]:
+    """The steps of ``registry`` (default :data:`STEPS`), built from ``config``'s sub-configs, disabled ones left out.
+
+    Every step sub-config has an ``enabled`` field; ``False`` leaves its step out.
+    """
+    steps = []
+    for field_name, make in registry:
+        sub = getattr(config, field_name)
+        if sub.enabled:
+            steps.append(make(sub))
+    return steps
 
 
 def strategy_for(config: Config) -> FusionStrategy:

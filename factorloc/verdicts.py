@@ -230,7 +230,10 @@ def _span(values: Sequence[float], unit: Unit) -> str:
     if not finite:
         return _number(math.nan, unit)
     lo, hi = _number(min(finite), unit), _number(max(finite), unit)
-    return lo if lo == hi else f"{lo}–{hi}"
+    if lo == hi:
+        return lo
+    suffix = next((u for u in (" m", " %", "°") if lo.endswith(u) and hi.endswith(u)), "")
+    return f"{lo.removesuffix(suffix)}–{hi}"
 
 
 def render_rule(checks: Sequence[Check]) -> str:
