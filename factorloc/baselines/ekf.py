@@ -40,9 +40,9 @@ from factorloc.baselines.common import (
     prior_estimate,
     reliable_estimates,
 )
-from factorloc.config import GatingConfig
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused, indices
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Component, Estimate, Query, StepReport
 

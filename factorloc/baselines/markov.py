@@ -34,9 +34,9 @@ import numpy as np
 from scipy import ndimage
 
 from factorloc.baselines.common import ODOMETRY_STEP, MotionModel, OdometryLink, gated, log_likelihood, reliable_estimates
-from factorloc.config import GatingConfig
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2
 from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 

@@ -52,10 +52,10 @@ from factorloc.baselines.common import (
     log_likelihood,
     reliable_estimates,
 )
-from factorloc.config import GatingConfig
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
 from factorloc.fusion.product import ProductFusion
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2
 from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 

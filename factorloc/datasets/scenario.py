@@ -26,7 +26,7 @@ from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -34,7 +34,6 @@ import yaml
 
 from factorloc.errors import DatasetError, InputError, UnknownIdError
 from factorloc.geometry import Pose2
-from factorloc.sim.world import World
 from factorloc.types import CameraImage, Odometry, Panorama, PointCloud, Query, Reference, Scan
 
 #: The value of ``format`` in every manifest.
@@ -43,6 +42,17 @@ FORMAT_NAME = "factorloc-scenario"
 FORMAT_VERSION = 1
 #: Fault tags the simulator writes (a scenario may carry others).
 FAULT_TAGS = ("kidnapped", "occlusion", "lighting", "blur", "depth_dropout", "glass", "corridor")
+
+if TYPE_CHECKING:  # pragma: no cover
+    from factorloc.sim.world import World
+
+
+def _is_world(value: Any) -> bool:
+    """Whether ``value`` is a :class:`factorloc.sim.World` (the simulator is imported only when a world is given)."""
+    from factorloc.sim.world import World
+
+    return isinstance(value, World)
+
 
 _ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
@@ -218,7 +228,7 @@ class Scenario:
                 )
         object.__setattr__(self, "references", refs)
         object.__setattr__(self, "queries", queries)
-        if self.world is not None and not isinstance(self.world, World):
+        if self.world is not None and not _is_world(self.world):
             raise InputError(
                 f"Scenario({self.name}).world must be a factorloc.sim.World or None, got {type(self.world).__name__}"
             )

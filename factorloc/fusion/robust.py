@@ -37,10 +37,10 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from factorloc.baselines.common import reliable_estimates
 from factorloc.errors import ConfigError
 from factorloc.fusion.base import Fused, check_estimates, mark_undetermined, undetermined_components
 from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance, noise_model
+from factorloc.fusion.sequential import reliable_estimates
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate, Query, StepReport
 

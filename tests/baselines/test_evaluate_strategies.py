@@ -10,9 +10,10 @@ from synthetic_trajectories import BOUNDS
 
 from factorloc.baselines import ExtendedKalmanFilter, MarkovGridLocalization, MonteCarloLocalization
 from factorloc.evaluation import evaluate
+from factorloc.evaluation.offline import smoothed_report
 from factorloc.fusion import GraphFusion, ProductFusion
 from factorloc.fusion.robust import RobustGraphFusion
-from factorloc.fusion.smoother import FixedLagSmoother, TrajectorySmoother, smoothed_report
+from factorloc.fusion.smoother import FixedLagSmoother, TrajectorySmoother
 
 KEYS = [
     "position_rmse_m",
