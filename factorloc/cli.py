@@ -297,7 +297,7 @@ def evaluate(
     except FactorlocError as exc:
         _fail(exc)
         return
-    out = report.to_json_dict()
+    out = report.to_json()
     console.print(evaluation_summary_table(out, f"{scen.name}: fused pose ({out['strategy']})"))
     console.print(evaluation_steps_table(out))
     reasons = gate_reasons_text(out)
@@ -527,7 +527,7 @@ def bench(
                     tasks[stage] = bar.add_task(stage, total=total)
                 bar.update(tasks[stage], completed=done, total=total)
 
-            out = run_bench(scen, cfg, settings=settings, progress=progress)
+            out = run_bench(scen, cfg, settings=settings, progress=progress).to_json()
     except FactorlocError as exc:
         _fail(exc)
         return
@@ -702,7 +702,7 @@ def demo(
     except FactorlocError as exc:
         _fail(exc)
         return
-    res = report.to_json_dict()
+    res = report.to_json()
     console.print(evaluation_steps_table(res, "What each step contributed"))
     console.print(evaluation_summary_table(res, f"Fused pose vs ground truth ({res['strategy']})"))
     reasons = gate_reasons_text(res, per_step=1)

@@ -29,7 +29,7 @@ from factorloc.geometry import Pose2
 from factorloc.types import StepStatus
 
 if TYPE_CHECKING:  # pragma: no cover
-    from factorloc.evaluation.runner import EvaluationReport
+    from factorloc.evaluation.report import EvaluationReport
     from factorloc.sim.world import World
 
 __all__ = [
@@ -286,11 +286,11 @@ def error_vs_distance_figure(report: EvaluationReport) -> Figure:
 # --------------------------------------------------------------------------
 def plot_availability_on_axes(ax: Axes, report: EvaluationReport) -> Axes:
     """Per step, the fraction of queries it was fused / unreliable / inconsistent / skipped / failed (stacked bars)."""
-    steps = report.to_json_dict()["steps"]
+    steps = report.summary().overall.steps
     names = list(steps)
     left = np.zeros(len(names))
     for status in [s.value for s in StepStatus]:
-        frac = np.array([steps[n]["status_rates"].get(status, 0.0) or 0.0 for n in names])
+        frac = np.array([steps[n].status_rates.get(status, 0.0) for n in names])
         if frac.any():
             ax.barh(names, frac, left=left, color=STATUS_COLORS[status], label=status, edgecolor="white", height=0.6)
             for i, (lft, f) in enumerate(zip(left, frac, strict=True)):

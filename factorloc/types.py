@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from factorloc._json import json_ready
 from factorloc._validate import bgr_image, finite_float, float_array, nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
@@ -278,7 +279,7 @@ class Estimate:
             "covariance": self.covariance.tolist(),
             "reliable": self.reliable,
             "reason": self.reason,
-            "diagnostics": {k: _jsonable(v) for k, v in self.diagnostics.items()},
+            "diagnostics": json_ready(self.diagnostics, finite=False),
             "checks": [c.to_dict() for c in self.checks],
             "seed": None if self.seed is None else self.seed.to_dict(),
         }
@@ -328,18 +329,6 @@ class Estimate:
         )
 
     __hash__ = None  # type: ignore[assignment]
-
-
-def _jsonable(v: Any) -> Any:
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, Mapping):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    return v
 
 
 # --------------------------------------------------------------------------

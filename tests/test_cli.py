@@ -188,7 +188,7 @@ def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> Non
         },
     }
     console = Console(width=100, record=True)
-    for t in bench_tables(out):
+    for t in bench_tables(out):  # the JSON of a BenchReport
         console.print(t)
     text = console.export_text()
     assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text and "≥ 2.0×" in text
@@ -229,7 +229,8 @@ def test_localize_unknown_query_or_scenario_fails_cleanly(repo_root: Path, tmp_p
 def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sample_needed() -> None:
     from rich.console import Console
 
-    from factorloc.benchmarking import _json_safe, compare_counts
+    from factorloc._json import json_ready
+    from factorloc.benchmarking import compare_counts
     from factorloc.cli import hierarchy_table
 
     none, two = compare_counts(0, 0, 300), compare_counts(0, 2, 300)
@@ -250,7 +251,7 @@ def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sam
         },
     }
     console = Console(width=160, record=True)
-    console.print(hierarchy_table(_json_safe(h)))
+    console.print(hierarchy_table(json_ready(h)))
     text = console.export_text()
     # 2 of 300 blind, 0 seeded: the rates' exact intervals, an unbounded ratio whose one-sided bound is 0.29×,
     # and the 2465 queries at which 0.67 % blind vs 0 seeded would show 5×

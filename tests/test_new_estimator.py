@@ -111,7 +111,7 @@ def test_the_new_step_is_scored_and_its_rules_counted_by_the_evaluation() -> Non
     odometry = Odometry(truth, 0.2, 0.2, 0.05)
     cases = [Case(Query(odometry=odometry, id=f"1.0{i},2.0,{s}"), truth) for i, s in enumerate([0.02, 0.02, 0.3, 0.4])]
     steps = [s for s in default_steps(cfg, REGISTRY) if s.name in ("odometry", "beacon")]
-    report = evaluate(EvaluationSet(REF, tuple(cases)), config=cfg, steps=steps).to_json_dict()
+    report = evaluate(EvaluationSet(REF, tuple(cases)), config=cfg, steps=steps).to_json()
     beacon = report["steps"]["beacon"]
     assert beacon["reliable_rate"] == 0.5 and beacon["gate_reasons"] == {"unreliable: beacon.sigma_position": 2}
     assert beacon["gate_rules"][0]["text"] == "σ position 0.3–0.4 m > 0.1 m"

@@ -6,7 +6,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from factorloc.evaluation.runner import EvaluationReport, HierarchyRun, evaluate
+from factorloc.evaluation.report import EvaluationReport
+from factorloc.evaluation.runner import HierarchyRun, evaluate
 from factorloc.fusion.base import mark_undetermined
 from factorloc.fusion.smoother import PLACEHOLDER_SIGMA, TrajectorySmoother
 from factorloc.types import FULL
