@@ -309,6 +309,19 @@ class SeedEvidence:
         return self.position_step is not None or self.heading_step is not None
 
     @property
+    def source(self) -> str:
+        """What seeded the step, in words: ``"seeded by odometry"``, ``"seeded by odometry (position) and compass
+        (heading)"``, ``"seeded by odometry (heading)"``; ``""`` when nothing did."""
+        pos, head = self.position_step, self.heading_step
+        if pos is None and head is None:
+            return ""
+        if pos == head or head is None:
+            return f"seeded by {pos}" + ("" if pos == head else " (position)")
+        if pos is None:
+            return f"seeded by {head} (heading)"
+        return f"seeded by {pos} (position) and {head} (heading)"
+
+    @property
     def contradicted(self) -> bool:
         """Whether the step's data contradict its seed (a seed check failed)."""
         return any(not c.passed for c in self.checks)

@@ -62,3 +62,11 @@ def test_render_rule_gives_the_range_of_one_rule_over_many_outcomes() -> None:
     ]
     assert render_rule(seeds) == "seed contradicted by icp"  # the notes differ: left out
     assert render_rule(seeds[:1]) == "seed contradicted by icp (a)"
+
+
+def test_seed_source_names_each_seeding_step_once() -> None:
+    assert SeedEvidence("odometry", "odometry").source == "seeded by odometry"
+    assert SeedEvidence("odometry", "compass").source == "seeded by odometry (position) and compass (heading)"
+    assert SeedEvidence("odometry", None).source == "seeded by odometry (position)"
+    assert SeedEvidence(None, "compass").source == "seeded by compass (heading)"
+    assert SeedEvidence().source == ""

@@ -13,6 +13,7 @@ from factorloc.datasets.scenario import (
     Scenario,
     ScenarioQuery,
     ScenarioReference,
+    check_scenario_target,
     load_scenario,
     save_scenario,
 )
@@ -23,6 +24,7 @@ __all__ = [
     "Scenario",
     "ScenarioQuery",
     "ScenarioReference",
+    "check_scenario_target",
     "load_scenario",
     "save_scenario",
 ]

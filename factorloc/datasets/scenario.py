@@ -346,6 +346,26 @@ def _query_equal(a: Query, b: Query) -> bool:
 # --------------------------------------------------------------------------
 # Writing
 # --------------------------------------------------------------------------
+def check_scenario_target(path: str | Path, overwrite: bool, *, how: str = "pass overwrite=True") -> Path:
+    """Check that a scenario may be written at ``path`` before any work is done; returns it as a :class:`Path`.
+
+    A missing or empty directory may be written; a directory holding a scenario (a ``scenario.yaml``) only with
+    ``overwrite``; anything else never. ``how`` is what the error message tells the user to do to replace an
+    existing scenario (the CLI: ``"use --overwrite"``).
+    """
+    root = Path(path)
+    if not root.exists():
+        return root
+    if not root.is_dir():
+        raise InputError(f"scenario path {str(root)!r} exists and is not a directory")
+    if any(root.iterdir()):
+        if not overwrite:
+            raise InputError(f"scenario directory {str(root)!r} is not empty ({how} to replace it)")
+        if not (root / "scenario.yaml").is_file():
+            raise InputError(f"refusing to overwrite {str(root)!r}: it is not empty and holds no scenario.yaml")
+    return root
+
+
 def save_scenario(
     scenario: Scenario,
     path: str | Path,
@@ -372,20 +392,13 @@ def save_scenario(
         raise InputError(f"image_format must be 'png' or 'jpg', got {image_format!r}")
     if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, int) or not 1 <= jpeg_quality <= 100:
         raise InputError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
-    root = Path(path)
-    if root.exists():
-        if not root.is_dir():
-            raise InputError(f"scenario path {str(root)!r} exists and is not a directory")
-        if any(root.iterdir()):
-            if not overwrite:
-                raise InputError(f"scenario directory {str(root)!r} is not empty (pass overwrite=True to replace it)")
-            if not (root / "scenario.yaml").is_file():
-                raise InputError(f"refusing to overwrite {str(root)!r}: it is not empty and holds no scenario.yaml")
-            for sub in ("references", "queries"):
-                if (root / sub).is_dir():
-                    shutil.rmtree(root / sub)
-            for f in ("scenario.yaml", "world.yaml"):
-                (root / f).unlink(missing_ok=True)
+    root = check_scenario_target(path, overwrite)
+    if root.exists() and any(root.iterdir()):  # an existing scenario, to be replaced (checked above)
+        for sub in ("references", "queries"):
+            if (root / sub).is_dir():
+                shutil.rmtree(root / sub)
+        for f in ("scenario.yaml", "world.yaml"):
+            (root / f).unlink(missing_ok=True)
     root.mkdir(parents=True, exist_ok=True)
 
     manifest: dict[str, Any] = {
