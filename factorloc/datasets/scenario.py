@@ -83,11 +83,7 @@ class ScenarioReference:
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, ScenarioReference):
             return NotImplemented
-        return (
-            self.id == other.id
-            and _reference_equal(self.reference, other.reference)
-            and dict(self.metadata) == dict(other.metadata)
-        )
+        return self.id == other.id and self.reference.same_as(other.reference) and dict(self.metadata) == dict(other.metadata)
 
     __hash__ = None  # type: ignore[assignment]
 
@@ -160,7 +156,7 @@ class ScenarioQuery:
         if not isinstance(other, ScenarioQuery):
             return NotImplemented
         return (
-            _query_equal(self.query, other.query)
+            self.query.same_as(other.query)
             and self.timestamp_s == other.timestamp_s
             and self.truth == other.truth
             and self.faults == other.faults
@@ -288,59 +284,6 @@ class Scenario:
         )
 
     __hash__ = None  # type: ignore[assignment]
-
-
-# --------------------------------------------------------------------------
-# Equality of the (identity-compared) sensor types
-# --------------------------------------------------------------------------
-def _arr_eq(a: np.ndarray | None, b: np.ndarray | None) -> bool:
-    if a is None or b is None:
-        return a is b
-    return a.shape == b.shape and a.dtype == b.dtype and bool(np.array_equal(a, b))
-
-
-def _panorama_equal(a: Panorama | None, b: Panorama | None) -> bool:
-    if a is None or b is None:
-        return a is b
-    return _arr_eq(a.image_bgr, b.image_bgr) and a.fov_v_rad == b.fov_v_rad and a.azimuth_col0_rad == b.azimuth_col0_rad
-
-
-def _camera_equal(a: CameraImage, b: CameraImage) -> bool:
-    return (
-        _arr_eq(a.image_bgr, b.image_bgr)
-        and a.hfov_rad == b.hfov_rad
-        and a.yaw_in_robot_rad == b.yaw_in_robot_rad
-        and a.pitch_rad == b.pitch_rad
-        and a.cx_px == b.cx_px
-    )
-
-
-def _points_equal(a: PointCloud | Scan | None, b: PointCloud | Scan | None) -> bool:
-    if a is None or b is None:
-        return a is b
-    return type(a) is type(b) and _arr_eq(a.points_m, b.points_m)
-
-
-def _reference_equal(a: Reference, b: Reference) -> bool:
-    return (
-        _panorama_equal(a.panorama, b.panorama)
-        and _points_equal(a.cloud, b.cloud)
-        and _points_equal(a.scan, b.scan)
-        and a.T_world_reference == b.T_world_reference
-        and a.name == b.name
-    )
-
-
-def _query_equal(a: Query, b: Query) -> bool:
-    return (
-        a.id == b.id
-        and len(a.images) == len(b.images)
-        and all(_camera_equal(x, y) for x, y in zip(a.images, b.images, strict=True))
-        and _panorama_equal(a.panorama, b.panorama)
-        and _points_equal(a.cloud, b.cloud)
-        and _points_equal(a.scan, b.scan)
-        and a.odometry == b.odometry
-    )
 
 
 # --------------------------------------------------------------------------
