@@ -40,6 +40,8 @@ def json_ready(value: Any, *, finite: bool = True) -> Any:
     if isinstance(value, (float, np.floating)):
         v = float(value)
         return v if math.isfinite(v) or not finite else None
+    if isinstance(value, np.generic):  # numpy strings, bytes, datetimes
+        return value.item()
     return value
 
 

@@ -9,7 +9,6 @@ in every :class:`~factorloc.types.Localization`).
 from __future__ import annotations
 
 import dataclasses
-import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from factorloc._validate import keys_problem, number_problem
 from factorloc.errors import ConfigError
 from factorloc.estimators.compass import CompassConfig
 from factorloc.estimators.correlation import CorrelationConfig
@@ -92,9 +92,9 @@ def _from_plain(cls: type, data: Any, where: str) -> Any:
         raise ConfigError(f"{where} must be a mapping, got {type(data).__name__} {data!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ConfigError(f"unknown key(s) {unknown} in {where}; known: {sorted(fields)}")
+    problem = keys_problem(data, fields)
+    if problem:
+        raise ConfigError(f"{where} {problem}")
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
@@ -137,8 +137,9 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where} must be an integer, got {value!r}")
         return value
     if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
-            raise ConfigError(f"{where} must be a finite number, got {value!r}")
+        problem = number_problem(value)
+        if problem:
+            raise ConfigError(f"{where} {problem}")
         return float(value)
     if hint is str:
         if not isinstance(value, str):

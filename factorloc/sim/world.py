@@ -30,40 +30,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from factorloc._validate import finite_float, positive_float
+from factorloc._validate import finite_float, mapping, point2, positive_float, sequence
 from factorloc.errors import InputError
 
 #: Version of the world-file format written by :func:`save_world`.
 WORLD_FORMAT_VERSION = 1
-
-
-# --------------------------------------------------------------------------
-# small parsing helpers
-# --------------------------------------------------------------------------
-def _seq(name: str, value: Any, n: int) -> tuple[Any, ...]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != n:
-        raise InputError(f"{name} must be a sequence of {n} numbers, got {value!r}")
-    return tuple(value)
-
-
-def _point(name: str, value: Any) -> tuple[float, float]:
-    x, y = _seq(name, value, 2)
-    return (finite_float(f"{name}[0]", x), finite_float(f"{name}[1]", y))
-
-
-def _list(name: str, value: Any) -> list[Any]:
-    if isinstance(value, (str, bytes, dict)) or not isinstance(value, (list, tuple)):
-        raise InputError(f"{name} must be a list, got {type(value).__name__}")
-    return list(value)
-
-
-def _mapping(where: str, data: Any, keys: set[str]) -> dict[str, Any]:
-    if not isinstance(data, dict):
-        raise InputError(f"{where} must be a mapping, got {type(data).__name__}")
-    unknown = set(data) - keys
-    if unknown:
-        raise InputError(f"{where} has unknown field(s) {sorted(unknown)}; allowed: {sorted(keys)}")
-    return data
 
 
 def _build(cls: type, where: str, d: dict[str, Any]) -> Any:
@@ -99,7 +70,7 @@ class Material:
     def __post_init__(self) -> None:
         if not isinstance(self.texture, str) or not self.texture:
             raise InputError(f"Material.texture must be a non-empty string, got {self.texture!r}")
-        tint = tuple(finite_float("Material.tint_bgr", t) for t in _seq("Material.tint_bgr", self.tint_bgr, 3))
+        tint = tuple(finite_float("Material.tint_bgr", t) for t in sequence("Material.tint_bgr", self.tint_bgr, 3))
         if any(t < 0.0 or t > 2.0 for t in tint):
             raise InputError(f"Material.tint_bgr gains must be in [0, 2], got {tint}")
         object.__setattr__(self, "tint_bgr", tint)
@@ -112,7 +83,7 @@ class Material:
     def from_dict(cls, data: Any, where: str = "material") -> Material:
         if isinstance(data, str):
             return cls(texture=data)
-        d = _mapping(where, data, {"texture", "tint_bgr", "tile_m"})
+        d = mapping(where, data, {"texture", "tint_bgr", "tile_m"})
         return _build(cls, where, d)
 
 
@@ -144,7 +115,7 @@ class Decal:
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "decal") -> Decal:
-        return _build(cls, where, _mapping(where, data, {"image", "u0_m", "u1_m", "z0_m", "z1_m"}))
+        return _build(cls, where, mapping(where, data, {"image", "u0_m", "u1_m", "z0_m", "z1_m"}))
 
 
 @dataclass(frozen=True)
@@ -181,11 +152,11 @@ class Face:
     def from_dict(cls, data: Any, where: str = "face") -> Face:
         if isinstance(data, str):
             return cls(Material(texture=data))
-        d = _mapping(where, data, {"material", "decals", "glass"})
+        d = mapping(where, data, {"material", "decals", "glass"})
         return cls(
             material=Material.from_dict(d.get("material", "plain"), f"{where}.material"),
             decals=tuple(
-                Decal.from_dict(x, f"{where}.decals[{i}]") for i, x in enumerate(_list(f"{where}.decals", d.get("decals", [])))
+                Decal.from_dict(x, f"{where}.decals[{i}]") for i, x in enumerate(sequence(f"{where}.decals", d.get("decals", [])))
             ),
             glass=bool(d.get("glass", False)),
         )
@@ -208,8 +179,8 @@ class Wall:
     right: Face = field(default_factory=Face)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "start_xy", _point("Wall.start_xy", self.start_xy))
-        object.__setattr__(self, "end_xy", _point("Wall.end_xy", self.end_xy))
+        object.__setattr__(self, "start_xy", point2("Wall.start_xy", self.start_xy))
+        object.__setattr__(self, "end_xy", point2("Wall.end_xy", self.end_xy))
         if math.dist(self.start_xy, self.end_xy) < 1e-6:
             raise InputError(f"Wall has zero length: start_xy = end_xy = {self.start_xy}")
         for side in ("left", "right"):
@@ -230,13 +201,13 @@ class Wall:
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "wall") -> Wall:
-        d = _mapping(where, data, {"start_xy", "end_xy", "left", "right"})
+        d = mapping(where, data, {"start_xy", "end_xy", "left", "right"})
         for key in ("start_xy", "end_xy"):
             if key not in d:
                 raise InputError(f"{where} is missing the field '{key}'")
         return cls(
-            start_xy=_point(f"{where}.start_xy", d["start_xy"]),
-            end_xy=_point(f"{where}.end_xy", d["end_xy"]),
+            start_xy=point2(f"{where}.start_xy", d["start_xy"]),
+            end_xy=point2(f"{where}.end_xy", d["end_xy"]),
             left=Face.from_dict(d.get("left", "plain"), f"{where}.left"),
             right=Face.from_dict(d.get("right", "plain"), f"{where}.right"),
         )
@@ -259,8 +230,8 @@ class Obstacle:
 
     def __post_init__(self) -> None:
         verts = tuple(
-            _point(f"Obstacle({self.name}).vertices_xy[{i}]", v)
-            for i, v in enumerate(_list("Obstacle.vertices_xy", self.vertices_xy))
+            point2(f"Obstacle({self.name}).vertices_xy[{i}]", v)
+            for i, v in enumerate(sequence("Obstacle.vertices_xy", self.vertices_xy))
         )
         if len(verts) < 3:
             raise InputError(f"Obstacle({self.name}).vertices_xy needs at least 3 vertices, got {len(verts)}")
@@ -305,7 +276,7 @@ class Obstacle:
 
     @classmethod
     def from_dict(cls, data: Any, where: str = "obstacle") -> Obstacle:
-        d = _mapping(where, data, {"name", "vertices_xy", "height_m", "faces", "top"})
+        d = mapping(where, data, {"name", "vertices_xy", "height_m", "faces", "top"})
         for key in ("vertices_xy", "height_m"):
             if key not in d:
                 raise InputError(f"{where} is missing the field '{key}'")
@@ -313,11 +284,11 @@ class Obstacle:
         if "top" in d:
             kwargs["top"] = Material.from_dict(d["top"], f"{where}.top")
         faces = tuple(
-            Face.from_dict(f, f"{where}.faces[{i}]") for i, f in enumerate(_list(f"{where}.faces", d.get("faces", ["plain"])))
+            Face.from_dict(f, f"{where}.faces[{i}]") for i, f in enumerate(sequence(f"{where}.faces", d.get("faces", ["plain"])))
         )
         return cls(
             vertices_xy=tuple(
-                _point(f"{where}.vertices_xy[{i}]", v) for i, v in enumerate(_list(f"{where}.vertices_xy", d["vertices_xy"]))
+                point2(f"{where}.vertices_xy[{i}]", v) for i, v in enumerate(sequence(f"{where}.vertices_xy", d["vertices_xy"]))
             ),
             height_m=finite_float(f"{where}.height_m", d["height_m"]),
             faces=faces,
@@ -379,7 +350,7 @@ class World:
             try:
                 rname, box = item
                 box = tuple(
-                    finite_float(f"World({self.name}).regions[{rname}]", v) for v in _seq(f"World.regions[{rname}]", box, 4)
+                    finite_float(f"World({self.name}).regions[{rname}]", v) for v in sequence(f"World.regions[{rname}]", box, 4)
                 )
             except (TypeError, ValueError) as exc:
                 raise InputError(f"World({self.name}).regions must map names to (x0, y0, x1, y1), got {item!r}") from exc
@@ -475,7 +446,7 @@ class World:
             "obstacles",
             "regions",
         }
-        d = _mapping(where, data, keys)
+        d = mapping(where, data, keys)
         version = d.get("format_version", WORLD_FORMAT_VERSION)
         if version != WORLD_FORMAT_VERSION:
             raise InputError(
@@ -497,11 +468,11 @@ class World:
         return cls(
             name=d["name"],
             walls=tuple(
-                Wall.from_dict(w, f"{where}.walls[{i}]") for i, w in enumerate(_list(f"{where}.walls", d.get("walls", [])))
+                Wall.from_dict(w, f"{where}.walls[{i}]") for i, w in enumerate(sequence(f"{where}.walls", d.get("walls", [])))
             ),
             obstacles=tuple(
                 Obstacle.from_dict(o, f"{where}.obstacles[{i}]")
-                for i, o in enumerate(_list(f"{where}.obstacles", d.get("obstacles", [])))
+                for i, o in enumerate(sequence(f"{where}.obstacles", d.get("obstacles", [])))
             ),
             **kwargs,
         )

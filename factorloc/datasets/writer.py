@@ -1,0 +1,191 @@
+"""Writing a scenario directory: :func:`save_scenario` (format in ``docs/data-format.md``).
+
+PNG and ``.npy`` are lossless, so :func:`~factorloc.datasets.reader.load_scenario` gives back an equal scenario;
+clouds are stored as float32 when that is exact, else float64.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from factorloc.datasets.scenario import FORMAT_NAME, FORMAT_VERSION, Scenario, plain
+from factorloc.errors import DatasetError, InputError
+from factorloc.geometry import Pose2
+from factorloc.types import Panorama
+
+__all__ = ["check_scenario_target", "save_scenario"]
+
+
+def check_scenario_target(path: str | Path, overwrite: bool, *, how: str = "pass overwrite=True") -> Path:
+    """Check that a scenario may be written at ``path`` before any work is done; returns it as a :class:`Path`.
+
+    A missing or empty directory may be written; a directory holding a scenario (a ``scenario.yaml``) only with
+    ``overwrite``; anything else never. ``how`` is what the error message tells the user to do to replace an
+    existing scenario (the CLI: ``"use --overwrite"``).
+    """
+    root = Path(path)
+    if not root.exists():
+        return root
+    if not root.is_dir():
+        raise InputError(f"scenario path {str(root)!r} exists and is not a directory")
+    if any(root.iterdir()):
+        if not overwrite:
+            raise InputError(f"scenario directory {str(root)!r} is not empty ({how} to replace it)")
+        if not (root / "scenario.yaml").is_file():
+            raise InputError(f"refusing to overwrite {str(root)!r}: it is not empty and holds no scenario.yaml")
+    return root
+
+
+def save_scenario(
+    scenario: Scenario,
+    path: str | Path,
+    *,
+    image_format: str = "png",
+    jpeg_quality: int = 90,
+    overwrite: bool = False,
+) -> Path:
+    """Write ``scenario`` as a directory at ``path``; returns the path.
+
+    Parameters
+    ----------
+    image_format
+        ``"png"`` (lossless: :func:`load_scenario` gives back an equal scenario) or
+        ``"jpg"`` for query camera images (smaller, lossy; panoramas stay PNG).
+    jpeg_quality
+        JPEG quality 1–100 when ``image_format="jpg"``.
+    overwrite
+        Replace an existing scenario directory (one that holds a ``scenario.yaml``).
+    """
+    if not isinstance(scenario, Scenario):
+        raise InputError(f"save_scenario needs a Scenario, got {type(scenario).__name__}")
+    if image_format not in ("png", "jpg"):
+        raise InputError(f"image_format must be 'png' or 'jpg', got {image_format!r}")
+    if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, int) or not 1 <= jpeg_quality <= 100:
+        raise InputError(f"jpeg_quality must be an integer in [1, 100], got {jpeg_quality!r}")
+    root = check_scenario_target(path, overwrite)
+    if root.exists() and any(root.iterdir()):  # an existing scenario, to be replaced (checked above)
+        for sub in ("references", "queries"):
+            if (root / sub).is_dir():
+                shutil.rmtree(root / sub)
+        for f in ("scenario.yaml", "world.yaml"):
+            (root / f).unlink(missing_ok=True)
+    root.mkdir(parents=True, exist_ok=True)
+
+    manifest: dict[str, Any] = {
+        "format": FORMAT_NAME,
+        "format_version": FORMAT_VERSION,
+        "name": scenario.name,
+        "description": scenario.description,
+        "seed": scenario.seed,
+        "world": None,
+        "metadata": plain(scenario.metadata),
+        "references": [],
+        "queries": [],
+    }
+    if scenario.world is not None:
+        from factorloc.sim.world import save_world
+
+        save_world(scenario.world, root / "world.yaml")
+        manifest["world"] = "world.yaml"
+
+    for ref_entry in scenario.references:
+        ref = ref_entry.reference
+        rdir = Path("references") / ref_entry.id
+        (root / rdir).mkdir(parents=True, exist_ok=True)
+        r: dict[str, Any] = {"id": ref_entry.id, "name": ref.name, "T_world_reference": _pose_dict(ref.T_world_reference)}
+        if ref.panorama is not None:
+            r["panorama"] = _write_panorama(root, rdir / "panorama.png", ref.panorama)
+        if ref.cloud is not None:
+            r["cloud"] = _write_points(root, rdir / "cloud.npy", ref.cloud.points_m)
+        if ref.scan is not None:
+            r["scan"] = _write_points(root, rdir / "scan.npy", ref.scan.points_m)
+        r["metadata"] = plain(ref_entry.metadata)
+        manifest["references"].append(r)
+
+    ext = ".png" if image_format == "png" else ".jpg"
+    for qe in scenario.queries:
+        q = qe.query
+        qdir = Path("queries") / q.id
+        (root / qdir).mkdir(parents=True, exist_ok=True)
+        e: dict[str, Any] = {
+            "id": q.id,
+            "timestamp_s": qe.timestamp_s,
+            "reference": qe.reference_id,
+            "truth": None if qe.truth is None else _pose_dict(qe.truth),
+            "odometry": None,
+            "faults": list(qe.faults),
+            "distance_from_reference_m": qe.distance_from_reference_m,
+            "images": [],
+        }
+        if q.odometry is not None:
+            o = q.odometry
+            e["odometry"] = {
+                **_pose_dict(o.T_world_robot),
+                "sigma_x_m": o.sigma_x_m,
+                "sigma_y_m": o.sigma_y_m,
+                "sigma_theta_rad": o.sigma_theta_rad,
+            }
+        for i, im in enumerate(q.images):
+            rel = qdir / f"image{i}{ext}"
+            _write_image(root / rel, im.image_bgr, jpeg_quality)
+            e["images"].append(
+                {
+                    "file": rel.as_posix(),
+                    "width_px": im.width_px,
+                    "height_px": im.height_px,
+                    "hfov_rad": im.hfov_rad,
+                    "yaw_in_robot_rad": im.yaw_in_robot_rad,
+                    "pitch_rad": im.pitch_rad,
+                    "cx_px": im.cx_px,
+                }
+            )
+        if q.panorama is not None:
+            e["panorama"] = _write_panorama(root, qdir / "panorama.png", q.panorama)
+        if q.cloud is not None:
+            e["cloud"] = _write_points(root, qdir / "cloud.npy", q.cloud.points_m)
+        if q.scan is not None:
+            e["scan"] = _write_points(root, qdir / "scan.npy", q.scan.points_m)
+        e["metadata"] = plain(qe.metadata)
+        manifest["queries"].append(e)
+
+    text = yaml.safe_dump(manifest, sort_keys=False, allow_unicode=True, width=140)
+    (root / "scenario.yaml").write_text(text, encoding="utf-8")
+    return root
+
+
+def _pose_dict(p: Pose2) -> dict[str, float]:
+    return {"x_m": p.x, "y_m": p.y, "theta_rad": p.theta}
+
+
+def _write_image(path: Path, image_bgr: np.ndarray, jpeg_quality: int) -> None:
+    if path.suffix == ".png":
+        ok, buf = cv2.imencode(".png", image_bgr, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    else:
+        ok, buf = cv2.imencode(".jpg", image_bgr, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+    if not ok:
+        raise DatasetError(f"could not encode image {str(path)!r}")
+    path.write_bytes(buf.tobytes())
+
+
+def _write_panorama(root: Path, rel: Path, pano: Panorama) -> dict[str, Any]:
+    _write_image(root / rel, pano.image_bgr, 100)
+    return {
+        "file": rel.as_posix(),
+        "width_px": pano.width_px,
+        "height_px": pano.height_px,
+        "fov_v_rad": pano.fov_v_rad,
+        "azimuth_col0_rad": pano.azimuth_col0_rad,
+    }
+
+
+def _write_points(root: Path, rel: Path, points: np.ndarray) -> dict[str, Any]:
+    p32 = points.astype(np.float32)
+    data = p32 if np.array_equal(p32.astype(np.float64), points) else np.asarray(points, np.float64)
+    np.save(root / rel, data, allow_pickle=False)
+    return {"file": rel.as_posix(), "points": int(points.shape[0])}
