@@ -21,6 +21,7 @@ from factorloc.errors import InputError
 
 __all__ = [
     "bgr_image",
+    "construct",
     "finite_float",
     "float_array",
     "keys_problem",
@@ -29,6 +30,7 @@ __all__ = [
     "number_problem",
     "point2",
     "positive_float",
+    "positive_int",
     "sequence",
 ]
 
@@ -85,6 +87,13 @@ def nonnegative_float(name: str, value: Any) -> float:
     return _checked(name, value, nonnegative=True)
 
 
+def positive_int(name: str, value: Any, minimum: int = 1) -> int:
+    """Return ``value`` as an int ≥ ``minimum`` (booleans are not integers) or raise :class:`InputError`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < minimum:
+        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def mapping(name: str, value: Any, known: Collection[str] | None = None) -> dict[str, Any]:
     """``value`` as a dict, checked to be a mapping (with only ``known`` keys when given), or raise :class:`InputError`."""
     if not isinstance(value, Mapping):
@@ -102,6 +111,14 @@ def sequence(name: str, value: Any, n: int | None = None) -> list[Any]:
     if n is not None and len(value) != n:
         raise InputError(f"{name} must be a sequence of {n} numbers, got {value!r}")
     return list(value)
+
+
+def construct(cls: type, where: str, fields: dict[str, Any]) -> Any:
+    """``cls(**fields)``, an unknown or missing field raised as :class:`InputError` naming ``where``."""
+    try:
+        return cls(**fields)
+    except TypeError as exc:
+        raise InputError(f"{where}: {exc}") from exc
 
 
 def point2(name: str, value: Any) -> tuple[float, float]:

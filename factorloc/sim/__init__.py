@@ -48,11 +48,10 @@ from factorloc.sim.motion import (
     simulate_odometry,
     waypoint_trajectory,
 )
+from factorloc.sim.raycast import Hits, cast_rays
 from factorloc.sim.render import (
     DepthCamera,
-    Hits,
     PinholeCamera,
-    cast_rays,
     panorama_rays,
     render_camera,
     render_cloud,

@@ -1,6 +1,6 @@
 """The simulated 2D laser scanner: :func:`render_scan` and its error model (a SICK LMS200-class lidar).
 
-The scan is cast with the renderers' ray caster (:mod:`factorloc.sim.render`) at one height, then given the
+The scan is cast with the renderers' ray caster (:mod:`factorloc.sim.raycast`) at one height, then given the
 statistical, per-surface systematic and mixed-pixel errors of a real time-of-flight scanner.
 """
 
@@ -11,10 +11,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from factorloc._validate import nonnegative_float, positive_float
+from factorloc._validate import nonnegative_float, positive_float, positive_int
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
-from factorloc.sim.render import _FACE, _cast_all, _positive_int
+from factorloc.sim.raycast import FACE, cast_all
 from factorloc.sim.world import Obstacle, World
 from factorloc.types import Scan
 
@@ -83,7 +83,7 @@ def render_scan(
     """
     if not isinstance(T_world_robot, Pose2):
         raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
-    n = _positive_int("n_beams", n_beams, 4)
+    n = positive_int("n_beams", n_beams, 4)
     rmax = positive_float("max_range_m", max_range_m)
     sig = nonnegative_float("sigma_m", sigma_m)
     sig_sys = nonnegative_float("systematic_sigma_m", systematic_sigma_m)
@@ -91,7 +91,7 @@ def render_scan(
     spot0 = nonnegative_float("spot_exit_m", spot_exit_m)
     jump = positive_float("mixed_min_jump_m", mixed_min_jump_m)
     az = 2.0 * math.pi * np.arange(n) / n
-    hits, _, _ = _cast_all(
+    hits, _, _ = cast_all(
         world,
         occluders,
         T_world_robot,
@@ -103,7 +103,7 @@ def render_scan(
         texture=False,
     )
     r = hits.distance_m[0].copy()
-    keep = (hits.kind[0] >= _FACE) & (r < rmax) & ~hits.glass[0]
+    keep = (hits.kind[0] >= FACE) & (r < rmax) & ~hits.glass[0]
     if rng is not None and sig > 0:
         r = r + rng.normal(0.0, sig, r.shape)
     if rng is not None and (sig_sys > 0 or div > 0 or spot0 > 0):
