@@ -9,6 +9,7 @@ in every :class:`~factorloc.types.Localization`).
 from __future__ import annotations
 
 import dataclasses
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -107,6 +108,7 @@ def _from_plain(cls: type, data: Any, where: str) -> Any:
 
 
 def _coerce(hint: Any, value: Any, where: str) -> Any:
+    """``value`` as the type ``hint`` of a config field (a dataclass, a tuple, an optional, a scalar)."""
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
         return _from_plain(hint, value, where)
@@ -116,18 +118,25 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
         args = typing.get_args(hint)
         inner = args[0] if args else Any
         return tuple(_coerce(inner, v, f"{where}[{i}]") for i, v in enumerate(value))
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        args = typing.get_args(hint)
-        if value is None and type(None) in args:
-            return None
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(a, value, where)
-            except ConfigError:
-                continue
-        raise ConfigError(f"{where} has an invalid value {value!r}")
+    if origin in (typing.Union, types.UnionType):
+        return _coerce_union(typing.get_args(hint), value, where)
+    return _coerce_scalar(hint, value, where)
+
+
+def _coerce_union(args: tuple[Any, ...], value: Any, where: str) -> Any:
+    if value is None and type(None) in args:
+        return None
+    for a in args:
+        if a is type(None):
+            continue
+        try:
+            return _coerce(a, value, where)
+        except ConfigError:
+            continue
+    raise ConfigError(f"{where} has an invalid value {value!r}")
+
+
+def _coerce_scalar(hint: Any, value: Any, where: str) -> Any:
     if hint is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where} must be true or false, got {value!r}")
@@ -141,8 +150,6 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
         if problem:
             raise ConfigError(f"{where} {problem}")
         return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where} must be a string, got {value!r}")
-        return value
+    if hint is str and not isinstance(value, str):
+        raise ConfigError(f"{where} must be a string, got {value!r}")
     return value

@@ -14,10 +14,10 @@ import cv2
 import numpy as np
 import yaml
 
-from factorloc.datasets.scenario import FORMAT_NAME, FORMAT_VERSION, Scenario, plain
+from factorloc.datasets.scenario import FORMAT_NAME, FORMAT_VERSION, Scenario, ScenarioQuery, ScenarioReference, plain
 from factorloc.errors import DatasetError, InputError
 from factorloc.geometry import Pose2
-from factorloc.types import Panorama
+from factorloc.types import Panorama, Query, Reference
 
 __all__ = ["check_scenario_target", "save_scenario"]
 
@@ -93,70 +93,73 @@ def save_scenario(
 
         save_world(scenario.world, root / "world.yaml")
         manifest["world"] = "world.yaml"
-
-    for ref_entry in scenario.references:
-        ref = ref_entry.reference
-        rdir = Path("references") / ref_entry.id
-        (root / rdir).mkdir(parents=True, exist_ok=True)
-        r: dict[str, Any] = {"id": ref_entry.id, "name": ref.name, "T_world_reference": _pose_dict(ref.T_world_reference)}
-        if ref.panorama is not None:
-            r["panorama"] = _write_panorama(root, rdir / "panorama.png", ref.panorama)
-        if ref.cloud is not None:
-            r["cloud"] = _write_points(root, rdir / "cloud.npy", ref.cloud.points_m)
-        if ref.scan is not None:
-            r["scan"] = _write_points(root, rdir / "scan.npy", ref.scan.points_m)
-        r["metadata"] = plain(ref_entry.metadata)
-        manifest["references"].append(r)
-
+    manifest["references"] = [_write_reference(root, entry) for entry in scenario.references]
     ext = ".png" if image_format == "png" else ".jpg"
-    for qe in scenario.queries:
-        q = qe.query
-        qdir = Path("queries") / q.id
-        (root / qdir).mkdir(parents=True, exist_ok=True)
-        e: dict[str, Any] = {
-            "id": q.id,
-            "timestamp_s": qe.timestamp_s,
-            "reference": qe.reference_id,
-            "truth": None if qe.truth is None else _pose_dict(qe.truth),
-            "odometry": None,
-            "faults": list(qe.faults),
-            "distance_from_reference_m": qe.distance_from_reference_m,
-            "images": [],
-        }
-        if q.odometry is not None:
-            o = q.odometry
-            e["odometry"] = {
-                **_pose_dict(o.T_world_robot),
-                "sigma_x_m": o.sigma_x_m,
-                "sigma_y_m": o.sigma_y_m,
-                "sigma_theta_rad": o.sigma_theta_rad,
-            }
-        for i, im in enumerate(q.images):
-            rel = qdir / f"image{i}{ext}"
-            _write_image(root / rel, im.image_bgr, jpeg_quality)
-            e["images"].append(
-                {
-                    "file": rel.as_posix(),
-                    "width_px": im.width_px,
-                    "height_px": im.height_px,
-                    "hfov_rad": im.hfov_rad,
-                    "yaw_in_robot_rad": im.yaw_in_robot_rad,
-                    "pitch_rad": im.pitch_rad,
-                    "cx_px": im.cx_px,
-                }
-            )
-        if q.panorama is not None:
-            e["panorama"] = _write_panorama(root, qdir / "panorama.png", q.panorama)
-        if q.cloud is not None:
-            e["cloud"] = _write_points(root, qdir / "cloud.npy", q.cloud.points_m)
-        if q.scan is not None:
-            e["scan"] = _write_points(root, qdir / "scan.npy", q.scan.points_m)
-        e["metadata"] = plain(qe.metadata)
-        manifest["queries"].append(e)
-
+    manifest["queries"] = [_write_query(root, entry, ext, jpeg_quality) for entry in scenario.queries]
     text = yaml.safe_dump(manifest, sort_keys=False, allow_unicode=True, width=140)
     (root / "scenario.yaml").write_text(text, encoding="utf-8")
     return root
+
+
+def _write_sensors(root: Path, folder: Path, entry: dict[str, Any], sensors: Reference | Query) -> None:
+    """The panorama, cloud and scan of a reference or query, written under ``folder`` and entered in ``entry``."""
+    if sensors.panorama is not None:
+        entry["panorama"] = _write_panorama(root, folder / "panorama.png", sensors.panorama)
+    if sensors.cloud is not None:
+        entry["cloud"] = _write_points(root, folder / "cloud.npy", sensors.cloud.points_m)
+    if sensors.scan is not None:
+        entry["scan"] = _write_points(root, folder / "scan.npy", sensors.scan.points_m)
+
+
+def _write_reference(root: Path, ref_entry: ScenarioReference) -> dict[str, Any]:
+    ref = ref_entry.reference
+    rdir = Path("references") / ref_entry.id
+    (root / rdir).mkdir(parents=True, exist_ok=True)
+    r: dict[str, Any] = {"id": ref_entry.id, "name": ref.name, "T_world_reference": _pose_dict(ref.T_world_reference)}
+    _write_sensors(root, rdir, r, ref)
+    r["metadata"] = plain(ref_entry.metadata)
+    return r
+
+
+def _write_query(root: Path, qe: ScenarioQuery, ext: str, jpeg_quality: int) -> dict[str, Any]:
+    q = qe.query
+    qdir = Path("queries") / q.id
+    (root / qdir).mkdir(parents=True, exist_ok=True)
+    e: dict[str, Any] = {
+        "id": q.id,
+        "timestamp_s": qe.timestamp_s,
+        "reference": qe.reference_id,
+        "truth": None if qe.truth is None else _pose_dict(qe.truth),
+        "odometry": None,
+        "faults": list(qe.faults),
+        "distance_from_reference_m": qe.distance_from_reference_m,
+        "images": [],
+    }
+    if q.odometry is not None:
+        o = q.odometry
+        e["odometry"] = {
+            **_pose_dict(o.T_world_robot),
+            "sigma_x_m": o.sigma_x_m,
+            "sigma_y_m": o.sigma_y_m,
+            "sigma_theta_rad": o.sigma_theta_rad,
+        }
+    for i, im in enumerate(q.images):
+        rel = qdir / f"image{i}{ext}"
+        _write_image(root / rel, im.image_bgr, jpeg_quality)
+        e["images"].append(
+            {
+                "file": rel.as_posix(),
+                "width_px": im.width_px,
+                "height_px": im.height_px,
+                "hfov_rad": im.hfov_rad,
+                "yaw_in_robot_rad": im.yaw_in_robot_rad,
+                "pitch_rad": im.pitch_rad,
+                "cx_px": im.cx_px,
+            }
+        )
+    _write_sensors(root, qdir, e, q)
+    e["metadata"] = plain(qe.metadata)
+    return e
 
 
 def _pose_dict(p: Pose2) -> dict[str, float]:

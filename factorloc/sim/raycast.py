@@ -133,9 +133,37 @@ def cast_rays(
     dx, dy = np.cos(az), np.sin(az)  # W
     row_tan = np.asarray(row_tan, np.float64)
     col_scale = np.asarray(col_scale, np.float64)
-    H, W = row_tan.shape[0], az.shape[0]
+    ft = np.float32 if texture else np.float64
+    layers = _column_layers(seg, ox, oy, dx, dy, wall_h)
+    px = _pixels(layers, seg, z_m, wall_h, (row_tan[:, None] * col_scale[None, :]).astype(ft), ft)
+    if not texture:
+        return Hits(px.kind, px.dist, px.face, (ox, oy, z_m), dx, dy, px.tan_e, px.fsel, px.plane_h, wall_h, px.glass)
+    map_x, map_y = _texture_maps(world, seg, layers, px, (ox, oy, z_m), dx, dy, np.asarray(pixel_angle_rad))
+    return Hits(px.kind, px.dist, px.face, (ox, oy, z_m), dx, dy, px.tan_e, px.fsel, px.plane_h, wall_h, px.glass, map_x, map_y)
 
-    # --- column rays against all segments (W×S) -------------------------------
+
+@dataclass(frozen=True, eq=False)
+class _Layers:
+    """The nearest segment hits of each column, nearest first, up to the first full-height one (Kp layers).
+
+    ``idx``, ``d_tab``, ``hit_ok``, ``h_tab``, ``f_tab``: Kp×W segment index, distance (m), hit, top height (m),
+    seen face (−1: an obstacle's top); ``s``: W×S position of each hit along its segment; ``on_left``: S, the
+    sensor's side of each segment; ``e``: S×2 segment vectors.
+    """
+
+    idx: np.ndarray
+    d_tab: np.ndarray
+    hit_ok: np.ndarray
+    h_tab: np.ndarray
+    f_tab: np.ndarray
+    s: np.ndarray
+    on_left: np.ndarray
+    e: np.ndarray
+
+
+def _column_layers(seg: Any, ox: float, oy: float, dx: np.ndarray, dy: np.ndarray, wall_h: float) -> _Layers:
+    """Column rays against all segments (W×S), reduced to the K nearest layers per column."""
+    W = dx.shape[0]
     e = seg.p1 - seg.p0
     wx, wy = seg.p0[:, 0] - ox, seg.p0[:, 1] - oy
     denom = dx[:, None] * e[None, :, 1] - dy[:, None] * e[None, :, 0]
@@ -160,17 +188,45 @@ def cast_rays(
     first_full = np.where(full.any(axis=1), np.argmax(full, axis=1), K - 1)
     Kp = int(first_full.max()) + 1
 
-    # per (layer, column) tables; row Kp is the pseudo-layer "no face: floor or ceiling"
+    # per (layer, column) tables; row Kp (in the pixel stage) is the pseudo-layer "no face: floor or ceiling"
     idx = idx[:, :Kp].T  # Kp×W
     d_tab = tk[:, :Kp].T
-    hit_ok = np.isfinite(d_tab)
-    h_tab = seg.height_m[idx]
-    f_tab = seen_face[idx]  # −1: top of an obstacle
+    return _Layers(idx, d_tab, np.isfinite(d_tab), seg.height_m[idx], seen_face[idx], s, on_left, e)
 
-    # --- per pixel: nearest layer whose face spans the pixel's elevation --------
-    # (branch-free arithmetic on H×W arrays: np.where / boolean indexing are 10–50× slower here)
-    ft = np.float32 if texture else np.float64
-    tan_e = (row_tan[:, None] * col_scale[None, :]).astype(ft)  # H×W
+
+@dataclass(frozen=True, eq=False)
+class _Pixels:
+    """Per pixel (H×W): the layer seen and what it is; ``table`` lays out per-layer values for ``np.take(…, lin)``."""
+
+    tan_e: np.ndarray
+    lin: np.ndarray
+    is_face_tab: np.ndarray
+    pseudo_up: np.ndarray
+    fsel: np.ndarray
+    dist: np.ndarray
+    kind: np.ndarray
+    face: np.ndarray
+    plane_h: np.ndarray
+    glass: np.ndarray
+    ft: Any
+
+    def table(self, values: np.ndarray, pseudo_value: float = 0.0, dtype: Any = None) -> np.ndarray:
+        return _table(values, self.tan_e.shape[1], self.ft if dtype is None else dtype, pseudo_value)
+
+
+def _table(values: np.ndarray, width: int, dtype: Any, pseudo_value: float = 0.0) -> np.ndarray:
+    """Kp×W per-layer ``values`` and the pseudo-layer's value, flattened for ``np.take`` with the pixels' ``lin``."""
+    return np.vstack([values, np.full((1, width), pseudo_value)]).ravel().astype(dtype)
+
+
+def _pixels(layers: _Layers, seg: Any, z_m: float, wall_h: float, tan_e: np.ndarray, ft: Any) -> _Pixels:
+    """Per pixel, the nearest layer whose face spans the pixel's elevation (painter's algorithm), and its hit.
+
+    Branch-free arithmetic on H×W arrays: ``np.where`` / boolean indexing are 10–50× slower here.
+    """
+    H, W = tan_e.shape
+    Kp = layers.idx.shape[0]
+    d_tab, hit_ok, h_tab, f_tab = layers.d_tab, layers.hit_ok, layers.h_tab, layers.f_tab
     layer = np.full((H, W), Kp, np.int8)
     with np.errstate(divide="ignore", invalid="ignore"):
         lo_tab = np.where(hit_ok, -z_m / d_tab, np.inf).astype(ft)
@@ -186,8 +242,8 @@ def cast_rays(
     up = tan_e >= 0.0
     pseudo_up = pseudo & up
 
-    def table(values: np.ndarray, pseudo_value: float = 0.0, dtype: type = ft) -> np.ndarray:
-        return np.vstack([values, np.full((1, W), pseudo_value)]).ravel().astype(dtype)
+    def table(values: np.ndarray, pseudo_value: float = 0.0, dtype: Any = ft) -> np.ndarray:
+        return _table(values, W, dtype, pseudo_value)
 
     fsel = np.take(table(is_face_tab), lin)  # 1 on faces, 0 on floor/ceiling/tops
     # planar pixels: distance = (z_cam − plane height)/(−tan e); faces: the layer's distance
@@ -202,31 +258,44 @@ def cast_rays(
     face = np.take(table(np.where(is_face_tab, f_tab, -1), -1, np.int64), lin)
     plane_h = np.take(table(np.where(is_face_tab, 0.0, h_tab)), lin) + pseudo_up * ft(wall_h)
     glass = np.take(table(is_face_tab & seg.face_glass[np.maximum(f_tab, 0)], 0, bool), lin)
-    if not texture:
-        return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, glass)
+    return _Pixels(tan_e, lin, is_face_tab, pseudo_up, fsel, dist, kind, face, plane_h, glass, ft)
 
-    # --- texture coordinates (float32) -------------------------------------------
+
+def _texture_maps(
+    world: World,
+    seg: Any,
+    layers: _Layers,
+    px: _Pixels,
+    origin: tuple[float, float, float],
+    dx: np.ndarray,
+    dy: np.ndarray,
+    pixel_angle_rad: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Atlas coordinates (float32) of every pixel, at the mip level of its texel footprint."""
+    ox, oy, z_m = origin
+    idx, d_tab, hit_ok, f_tab, e = layers.idx, layers.d_tab, layers.hit_ok, layers.f_tab, layers.e
+    is_face_tab, lin, dist, tan_e, table = px.is_face_tab, px.lin, px.dist, px.tan_e, px.table
     atlas = atlas_of(world)
     ppm = atlas.ppm
     f32 = np.float32
     fsafe = np.maximum(f_tab, 0)
-    s_tab = np.take_along_axis(s, idx.T, axis=1).T
+    s_tab = np.take_along_axis(layers.s, idx.T, axis=1).T
     L = seg.face_length_m[fsafe]
-    u_m = np.where(on_left[idx], (1.0 - s_tab) * L, s_tab * L)
+    u_m = np.where(layers.on_left[idx], (1.0 - s_tab) * L, s_tab * L)
     ax_tab = np.where(is_face_tab, atlas.face_x0[fsafe] + u_m * ppm, 0.0)
     ay_tab = np.where(is_face_tab, atlas.face_y0[fsafe] + (seg.face_height_m[fsafe] - z_m) * ppm, 0.0)  # − ppm·d·tan e per pixel
     cos_h = np.abs(e[idx, 0] * dy[None, :] - e[idx, 1] * dx[None, :]) / np.hypot(e[idx, 0], e[idx, 1])
     fp_tab = np.where(is_face_tab, ppm * pixel_angle_rad[None, :] * np.where(hit_ok, d_tab, 0.0) / np.clip(cos_h, 0.35, 1.0), 0.0)
     dist_t = dist * tan_e
     # tiles: 0 floor, 1 ceiling, 2 + k top of obstacle k (face pixels get tile 0: finite, then discarded)
-    tile = np.take(table(np.where(is_face_tab, 0, 2 + seg.obstacle[idx]), 0, np.intp), lin) + pseudo_up
+    tile = np.take(table(np.where(is_face_tab, 0, 2 + seg.obstacle[idx]), 0, np.intp), lin) + px.pseudo_up
     tppm = np.take(atlas.tile_ppm.astype(f32), tile)
     tpx = np.take(atlas.tile_px.astype(f32), tile)
     xs = (f32(ox) + dist * dx.astype(f32)[None, :]) * tppm
     ys = (f32(-oy) - dist * dy.astype(f32)[None, :]) * tppm
     ax_t = np.take(atlas.tile_x0.astype(f32), tile) + xs - np.floor(xs / tpx) * tpx
     ay_t = np.take(atlas.tile_y0.astype(f32), tile) + ys - np.floor(ys / tpx) * tpx
-    face_px = fsel > 0.5
+    face_px = px.fsel > 0.5
     ax = np.where(face_px, np.take(table(ax_tab), lin), ax_t)
     ay = np.where(face_px, np.take(table(ay_tab), lin) - f32(ppm) * dist_t, ay_t)
 
@@ -240,7 +309,7 @@ def cast_rays(
     scale = np.ldexp(f32(1.0), -level)  # 2^−level, exact
     map_x = np.take(atlas.level_x0, level) + ax * scale - f32(0.5)
     map_y = np.take(atlas.level_y0, level) + ay * scale - f32(0.5)
-    return Hits(kind, dist, face, (ox, oy, z_m), dx, dy, tan_e, fsel, plane_h, wall_h, glass, map_x, map_y)
+    return map_x, map_y
 
 
 def shade(world: World, hits: Hits) -> np.ndarray:
