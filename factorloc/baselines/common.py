@@ -1,8 +1,9 @@
-"""The baselines' sensor model, and the pieces of :mod:`factorloc.fusion.sequential` they share.
+"""The baselines' sensor model: :func:`log_likelihood` of an estimate at many poses.
 
 Between two queries a sequential strategy moves its belief by the odometry's relative motion
-(:class:`~factorloc.fusion.sequential.MotionModel`, :class:`~factorloc.fusion.sequential.OdometryLink`);
-at each query it weighs the hierarchy's gated estimates with :func:`log_likelihood`.
+(:class:`~factorloc.fusion.sequential.MotionModel`, :class:`~factorloc.fusion.sequential.OdometryLink`,
+shared with the smoothers in :mod:`factorloc.fusion.sequential`); at each query the grid and particle
+filters weigh the hierarchy's gated estimates with :func:`log_likelihood`.
 """
 
 from __future__ import annotations
@@ -11,16 +12,6 @@ import math
 
 import numpy as np
 
-from factorloc.fusion.sequential import (
-    ODOMETRY_STEP,
-    MotionModel,
-    OdometryLink,
-    compose_with_covariance,
-    full_pose_mask,
-    gated,
-    prior_estimate,
-    reliable_estimates,
-)
 from factorloc.types import Component, Estimate, component_indices
 
 
@@ -60,14 +51,4 @@ def log_likelihood(
     return np.logaddexp(math.log1p(-eps) + log_gauss, math.log(eps) + log_u)
 
 
-__all__ = [
-    "MotionModel",
-    "ODOMETRY_STEP",
-    "OdometryLink",
-    "compose_with_covariance",
-    "full_pose_mask",
-    "gated",
-    "log_likelihood",
-    "prior_estimate",
-    "reliable_estimates",
-]
+__all__ = ["log_likelihood"]

@@ -5,7 +5,7 @@ The belief is a set of N weighted particles (x, y, θ) in the world frame.
 
 * **Predict** (sample the odometry motion model, *Probabilistic Robotics*
   Table 5.6 in the robot frame): each particle moves by the odometry motion Δ
-  perturbed with its own draw of the :class:`~factorloc.baselines.common.MotionModel` noise.
+  perturbed with its own draw of the :class:`~factorloc.fusion.sequential.MotionModel` noise.
 * **Correct**: weights are multiplied by the likelihood of every reliable
   estimate of the query (gated as in the hierarchy), with the robust sensor
   model (Gaussian with a uniform outlier floor,
@@ -44,17 +44,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from factorloc.baselines.common import (
-    ODOMETRY_STEP,
-    MotionModel,
-    OdometryLink,
-    gated,
-    log_likelihood,
-    reliable_estimates,
-)
+from factorloc.baselines.common import log_likelihood
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
 from factorloc.fusion.product import ProductFusion
+from factorloc.fusion.sequential import ODOMETRY_STEP, MotionModel, OdometryLink, gated, reliable_estimates
 from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2
 from factorloc.types import Component, Estimate, Query, StepReport, component_indices

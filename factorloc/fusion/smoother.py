@@ -56,10 +56,9 @@ from factorloc.types import Component, Query, StepReport
 
 log = logging.getLogger(__name__)
 
-#: σ of the placeholder prior that anchors a component nothing has measured yet (m and rad).
-#: Far beyond any indoor uncertainty, yet small enough for GTSAM's Cholesky: with 1e3 m, a
-#: chain that starts with a heading only and is then linked by cm-level odometry is declared
-#: an indeterminate system (condition ~1e9); measured, 100 m still works, 300 m fails.
+#: σ of the placeholder prior that anchors a component nothing has measured yet (m and rad): far beyond any
+#: indoor uncertainty, yet small enough for GTSAM's Cholesky on a chain linked by cm-level odometry (the
+#: measurement that set it: ``docs/calibration/fusion.md``).
 PLACEHOLDER_SIGMA = 30.0
 
 

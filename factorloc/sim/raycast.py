@@ -14,12 +14,7 @@ pixel's elevation decides which of them it sees:
 
 Textures are sampled bilinearly from the world's mip-mapped atlas
 (:func:`factorloc.sim.textures.atlas_of`) with :func:`cv2.remap`, the level
-chosen per pixel from the texel footprint. Perspective, parallax and
-occlusion are therefore exact; there is no lighting model beyond a fixed
-shade per face orientation.
-
-Sensor heights are metres above the floor; sensors sit on the robot's
-vertical axis. Camera pitch is always 0 (optical axes horizontal).
+chosen per pixel from the texel footprint.
 """
 
 from __future__ import annotations

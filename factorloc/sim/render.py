@@ -1,28 +1,12 @@
 """Renderers: 360° panoramas, pinhole camera images and depth point clouds of a :class:`World`
 (the 2D laser scan is :mod:`factorloc.sim.laser`).
 
-All renderers share one vectorised ray caster (:mod:`factorloc.sim.raycast`). A sensor's pixel grid is
-*column-separable*: every image column is a vertical plane through the
-sensor's (vertical) axis, so a column's horizontal ray is intersected with all
-S plan segments at once (a W×S array), the K nearest hits are kept, and each
-pixel's elevation decides which of them it sees:
+All renderers share one vectorised ray caster (:mod:`factorloc.sim.raycast`, which explains how a
+column-separable pixel grid is cast and textured): perspective, parallax and occlusion are exact; there
+is no lighting model beyond a fixed shade per face orientation.
 
-* a hit at horizontal distance ``d`` is seen by the pixel of elevation tangent
-  ``t`` when the ray's height there, ``z = z_cam + d·t``, lies on the face
-  (``0 ≤ z ≤ height``); nearer hits win (occlusion);
-* a ray that passes above a low obstacle's front face and meets its back face
-  from inside has hit the obstacle's *top* at ``d = (z_cam − h)/(−t)``;
-* a ray that meets no face hits the floor at ``d = z_cam/(−t)`` or the ceiling
-  at ``d = (H − z_cam)/t``.
-
-Textures are sampled bilinearly from the world's mip-mapped atlas
-(:func:`factorloc.sim.textures.atlas_of`) with :func:`cv2.remap`, the level
-chosen per pixel from the texel footprint. Perspective, parallax and
-occlusion are therefore exact; there is no lighting model beyond a fixed
-shade per face orientation.
-
-Sensor heights are metres above the floor; sensors sit on the robot's
-vertical axis. Camera pitch is always 0 (optical axes horizontal).
+Sensor heights are metres above the floor; sensors sit on the robot's vertical axis. Camera pitch is
+always 0 (optical axes horizontal).
 """
 
 from __future__ import annotations

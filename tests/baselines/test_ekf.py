@@ -9,10 +9,10 @@ import pytest
 from synthetic_trajectories import position_errors
 
 from factorloc.baselines import ExtendedKalmanFilter
-from factorloc.baselines.common import MotionModel, compose_with_covariance
 from factorloc.errors import InputError
 from factorloc.evaluation import evaluate
 from factorloc.fusion import ProductFusion
+from factorloc.fusion.sequential import MotionModel, compose_with_covariance
 from factorloc.fusion.smoother import TrajectorySmoother
 from factorloc.geometry import Pose2
 
