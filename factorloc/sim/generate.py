@@ -34,6 +34,7 @@ import numpy as np
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.sim.determinism import deterministic
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
 from factorloc.sim.motion import DriftModel, random_walk, simulate_odometry
 from factorloc.sim.render import (
@@ -257,6 +258,7 @@ def generate_query(
     }
 
 
+@deterministic
 def generate_scenario(
     world: World | str,
     n_queries: int,

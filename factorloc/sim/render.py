@@ -39,6 +39,7 @@ import numpy as np
 from factorloc._validate import finite_float, nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.sim.determinism import without_ipp
 from factorloc.sim.textures import atlas_of
 from factorloc.sim.world import Obstacle, World
 from factorloc.types import CameraImage, Panorama, PointCloud, Scan
@@ -348,8 +349,9 @@ def cast_rays(
 
 
 def _shade(world: World, hits: Hits) -> np.ndarray:
-    """Sample the packed atlas bilinearly: H×W×3 BGR uint8."""
-    return cv2.remap(atlas_of(world).packed, hits.map_x, hits.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    """Sample the packed atlas bilinearly: H×W×3 BGR uint8 (without IPP: see :mod:`factorloc.sim.determinism`)."""
+    with without_ipp():
+        return cv2.remap(atlas_of(world).packed, hits.map_x, hits.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 # --------------------------------------------------------------------------
