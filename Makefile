@@ -14,6 +14,21 @@ LATEST_VENV ?= .venv-latest
 # mkdocs-typer2 calls the `typer` executable of the virtual environment
 DOCS_ENV := PATH="$(abspath $(BIN)):$$PATH" NO_MKDOCS_2_WARNING=1
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+# name==version pairs of two requirement files, normalized (PEP 503 names), and the ones that differ
+define LOCK_DIFF
+import re, sys
+def pins(path):
+    out = {}
+    for line in open(path):
+        m = re.match(r"([A-Za-z0-9_.-]+)==([^ ;#]+)", line.strip())
+        if m:
+            out[re.sub(r"[-_.]+", "-", m[1]).lower()] = m[2]
+    return out
+a, b = pins(sys.argv[1]), pins(sys.argv[2])
+diff = [f"  {k}: {a.get(k, '-')} -> {b.get(k, '-')}" for k in sorted(a.keys() | b.keys()) if a.get(k) != b.get(k)]
+print("\n".join(diff) or "  none")
+endef
+export LOCK_DIFF
 
 .PHONY: setup demo test docs docs-serve browser lint bench clean lock test-latest
 
@@ -75,8 +90,7 @@ test-latest:
 	$(LATEST_VENV)/bin/python -m pip install -q --upgrade pip
 	$(LATEST_VENV)/bin/python -m pip install -q -e ".[dev,docs]"
 	$(LATEST_VENV)/bin/python -m pip freeze --exclude-editable > $(LATEST_VENV)/versions.txt
-	@echo "versions that differ from the lock:"; diff <(grep -i '==' $(LOCK) | sed 's/ .*//' | tr 'A-Z_.' 'a-z--' | sort) \
-	  <(tr 'A-Z_.' 'a-z--' < $(LATEST_VENV)/versions.txt | sort) | grep '^[<>]' || echo "  none"
+	@echo "versions that differ from the lock:"; $(LATEST_VENV)/bin/python -c "$$LOCK_DIFF" $(LOCK) $(LATEST_VENV)/versions.txt
 	$(LATEST_VENV)/bin/python -m pytest -n 2 -q -p no:cacheprovider
 	rm -rf $(LATEST_VENV)
 
