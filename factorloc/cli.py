@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 import factorloc
+from factorloc import cli_convert
 from factorloc.errors import FactorlocError, InputError
 
 app = typer.Typer(
@@ -719,6 +720,8 @@ def demo(
     )
     console.print("[dim]Next: factorloc evaluate SCENARIO --plot DIR, factorloc simulate, factorloc bench; docs/evaluation.md[/]")
 
+
+cli_convert.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()
