@@ -126,6 +126,16 @@ class OdometryTrack:
         near = [abs(ts[j] - t_s) for j in (i - 1, i) if 0 <= j < len(ts)]
         return float(min(near))
 
+    def bracket_s(self, t_s: float) -> float:
+        """Length (s) of the interval between the two poses around ``t_s`` (0 at a pose, inf outside the track)."""
+        ts = self.stamps_s
+        i = int(np.searchsorted(ts, t_s))
+        if i < len(ts) and ts[i] == t_s:
+            return 0.0
+        if i == 0 or i >= len(ts):
+            return math.inf
+        return float(ts[i] - ts[i - 1])
+
     def path_length_m(self, t_s: float | np.ndarray) -> float | np.ndarray:
         """Path length (m) travelled from the first pose to ``t_s`` (clamped to the track's span)."""
         out = np.interp(t_s, self.stamps_s, self._cum_distance_m)  # type: ignore[attr-defined]

@@ -76,6 +76,9 @@ class ConvertConfig:
         Path length between queries (m; 0: every keyframe). Not used with relations.
     odometry_model
         σ of the odometry as a function of the path since the reference (:class:`factorloc.OdometryModel`).
+    relation_tolerance_s
+        Largest time between a relation's ``t1``/``t2`` and the keyframe it names (relations are
+        defined at sensor stamps; a relation whose sensor message has no odometry near it is left out).
     name
         The scenario's name (default: the bag's file name).
     """
@@ -85,6 +88,7 @@ class ConvertConfig:
     reference_times_s: tuple[float, ...] = ()
     query_every_m: float = 0.5
     odometry_model: OdometryModel = field(default_factory=OdometryModel)
+    relation_tolerance_s: float = 2e-3
     name: str = ""
 
     def __post_init__(self) -> None:
@@ -92,6 +96,7 @@ class ConvertConfig:
             raise InputError(f"ConvertConfig.sensors must be a SensorConfig, got {type(self.sensors).__name__}")
         positive_float("ConvertConfig.reference_every_m", self.reference_every_m)
         nonnegative_float("ConvertConfig.query_every_m", self.query_every_m)
+        positive_float("ConvertConfig.relation_tolerance_s", self.relation_tolerance_s)
         if not isinstance(self.odometry_model, OdometryModel):
             raise InputError(f"ConvertConfig.odometry_model must be an OdometryModel, got {type(self.odometry_model).__name__}")
         object.__setattr__(self, "reference_times_s", tuple(float(t) for t in self.reference_times_s))
@@ -172,11 +177,17 @@ def _references_and_queries(
         rel_t1 = np.asarray(truth.t1_s, dtype=np.float64)
         rel_t2 = np.asarray(truth.t2_s, dtype=np.float64)
         rel_p = np.asarray(truth.poses, dtype=np.float64)
-        k1 = [_match(stamps, t, tol) for t in rel_t1]
-        k2 = [_match(stamps, t, tol) for t in rel_t2]
+        rtol = config.relation_tolerance_s
+        k1 = [_match(stamps, t, rtol) for t in rel_t1]
+        k2 = [_match(stamps, t, rtol) for t in rel_t2]
         ok = [i for i in range(len(rel_t1)) if k1[i] is not None and k2[i] is not None]
         if not ok:
-            raise DatasetError(f"no relation's times are within {tol} s of a {kind} keyframe with odometry")
+            raise DatasetError(f"no relation's times are within {rtol} s of a {kind} keyframe with odometry")
+        if len(ok) < len(rel_t1):
+            sensors.notes.append(
+                f"{len(rel_t1) - len(ok)} of {len(rel_t1)} relations name a time with no {kind} keyframe within {rtol} s "
+                "(or no odometry around it): left out"
+            )
         candidates = np.array(sorted({float(stamps[k1[i]]) for i in ok}))  # type: ignore[index]
         what = "the start of a relation"
     else:

@@ -57,8 +57,11 @@ class SensorConfig:
     extrinsics
         ``{frame: T_robot_frame}`` given by the user; they win over the bag's TF.
     sync_tolerance_s
-        Largest time (s) between a keyframe and the odometry, and between a keyframe and
-        a message of another sensor that joins it.
+        Largest time (s) between a keyframe and a message of another sensor that joins it, and
+        between a keyframe and the odometry message it is extrapolated from.
+    max_odometry_gap_s
+        A keyframe between two odometry messages at most this far apart (s) gets the pose
+        interpolated between them (odometry is often slower than the sensors).
     max_range_m
         Laser returns beyond this are dropped (default: each scan's ``range_max``).
     hfov_rad
@@ -80,6 +83,7 @@ class SensorConfig:
     robot_frame: str | None = None
     extrinsics: Mapping[str, Rigid3] = field(default_factory=dict)
     sync_tolerance_s: float = 0.05
+    max_odometry_gap_s: float = 1.0
     max_range_m: float | None = None
     hfov_rad: float | None = None
     cloud_voxel_m: float | None = None
@@ -90,6 +94,7 @@ class SensorConfig:
 
     def __post_init__(self) -> None:
         positive_float("SensorConfig.sync_tolerance_s", self.sync_tolerance_s)
+        nonnegative_float("SensorConfig.max_odometry_gap_s", self.max_odometry_gap_s)
         nonnegative_float("SensorConfig.stationary_radius_m", self.stationary_radius_m)
         nonnegative_float("SensorConfig.reference_window_s", self.reference_window_s)
         for name in ("max_range_m", "hfov_rad", "cloud_voxel_m"):
@@ -299,8 +304,16 @@ class BagSensors:
             raise DatasetError(f"reference {name} at t = {t_s!r} s has no scan, cloud or panorama within the tolerance")
         return Reference(panorama=panorama, cloud=cloud, scan=scan, T_world_reference=T_world_reference, name=name)
 
+    def covered(self, t_s: float) -> bool:
+        """Whether the odometry gives the pose at ``t_s`` (see :meth:`keyframes`)."""
+        odo = self.odometry
+        return odo.gap_s(t_s) <= self.tol or odo.bracket_s(t_s) <= self.config.max_odometry_gap_s
+
     def keyframes(self) -> tuple[str, np.ndarray]:
-        """The first sensor of laser scan, cloud, camera, and its stamps that have an odometry message within the tolerance.
+        """The first sensor of laser scan, cloud, camera, and its stamps the odometry covers.
+
+        A stamp is covered when an odometry message lies within ``sync_tolerance_s`` of it, or it lies
+        between two odometry messages at most ``max_odometry_gap_s`` apart.
 
         Raises
         ------
@@ -317,9 +330,9 @@ class BagSensors:
             kind, stamps = f"camera {first}", data.cameras[first].stamps_s
         else:
             raise DatasetError(f"bag {data.path} has no laser scan, point cloud or colour camera to make queries of")
-        ok = np.array([self.odometry.gap_s(float(t)) <= self.tol for t in stamps], dtype=bool)
+        ok = np.array([self.covered(float(t)) for t in stamps], dtype=bool)
         if not ok.any():
-            raise DatasetError(f"no {kind} message of {data.path} has an odometry message within {self.tol} s")
+            raise DatasetError(f"no {kind} message of {data.path} has odometry around it (see SensorConfig.max_odometry_gap_s)")
         return kind, np.asarray(stamps)[ok]
 
 
