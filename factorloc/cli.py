@@ -18,7 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 import factorloc
-from factorloc import cli_convert
+from factorloc import cli_convert, jit
 from factorloc.errors import FactorlocError, InputError
 
 app = typer.Typer(
@@ -46,6 +46,8 @@ def main(
     ] = None,
 ) -> None:
     """factorloc command line."""
+    # the first run on a machine compiles the ICP kernels: say so (on stderr, so that --json output stays clean)
+    jit.on_first_compile(lambda msg: Console(stderr=True).print(f"[dim]{msg}[/]"))
 
 
 # ----------------------------------------------------------------------------

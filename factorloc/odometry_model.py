@@ -33,7 +33,6 @@ import numpy as np
 
 from factorloc._validate import nonnegative_float, positive_float
 from factorloc.errors import InputError
-from factorloc.gating import chi2_threshold
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Odometry
 
@@ -51,8 +50,9 @@ __all__ = [
 
 #: P(|z| > 3) for a standard normal: the share of a Gaussian beyond 3σ (1 dof).
 GAUSSIAN_3SIGMA_TAIL = math.erfc(3.0 / math.sqrt(2.0))
-#: The 2-dof χ² quantile of probability 1 − :data:`GAUSSIAN_3SIGMA_TAIL` (the 3σ ellipse, 11.83).
-CHI2_3SIGMA_2DOF = chi2_threshold(1.0 - GAUSSIAN_3SIGMA_TAIL, 2)
+#: The 2-dof χ² quantile of probability 1 − :data:`GAUSSIAN_3SIGMA_TAIL` (the 3σ ellipse, 11.83): for 2 dof the χ²
+#: quantile has the closed form −2·ln(1 − p), equal to :func:`factorloc.gating.chi2_threshold` (no scipy import here).
+CHI2_3SIGMA_2DOF = -2.0 * math.log(GAUSSIAN_3SIGMA_TAIL)
 
 
 @dataclass(frozen=True)

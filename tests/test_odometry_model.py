@@ -12,6 +12,7 @@ import factorloc as fl
 from factorloc.datasets.rosbag import OdometryTrack
 from factorloc.errors import InputError
 from factorloc.odometry_model import (
+    CHI2_3SIGMA_2DOF,
     GAUSSIAN_3SIGMA_TAIL,
     OdometryModel,
     assess_odometry_model,
@@ -49,6 +50,13 @@ def _synthetic(seed: int, n: int = 4000, k: float = 0.1, floor: float = 0.02, kh
         s, st = max(floor, k * d), max(1e-3, kh * r + kd * d)
         poses.append([seed_pose.x - rng.normal(0, s), seed_pose.y - rng.normal(0, s), seed_pose.theta - rng.normal(0, st)])
     return _Log(track, f"synthetic{seed}"), _Rel(t1, t2, np.array(poses))
+
+
+def test_the_3sigma_quantiles_are_the_gates() -> None:
+    from factorloc.gating import chi2_threshold
+
+    assert CHI2_3SIGMA_2DOF == pytest.approx(chi2_threshold(1.0 - GAUSSIAN_3SIGMA_TAIL, 2), rel=1e-12)
+    assert GAUSSIAN_3SIGMA_TAIL == pytest.approx(1.0 - 0.9973002039367398, rel=1e-9)
 
 
 def test_the_model_is_what_odometry_from_distance_computes() -> None:
