@@ -350,9 +350,11 @@ def fit_odometry_model(
 
     Parameters
     ----------
-    log, relations
-        A log with an ``odometry`` track and its ground truth (:class:`RelativePoses`), or two
-        sequences of equal length (one entry per log: each log must meet the tail on its own).
+    log
+        A log with an ``odometry`` track (:class:`factorloc.datasets.rosbag.LaserLog`), or a
+        sequence of them (each log must then meet the tail on its own).
+    relations
+        Its ground truth (:class:`RelativePoses`), or a sequence of the same length as ``log``.
     max_path_m
         Only relations with an odometry path shorter than this are used (see :func:`odometry_residuals`).
     tail_probability

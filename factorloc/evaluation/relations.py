@@ -190,8 +190,10 @@ def relations_benchmark(
 
     Parameters
     ----------
-    log, relations
-        The laser log (scans and odometry) and its ground-truth relations.
+    log
+        The laser log (scans and odometry).
+    relations
+        Its ground-truth relations.
     methods
         Any of :data:`METHODS`.
     config

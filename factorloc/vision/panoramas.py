@@ -80,6 +80,17 @@ def _sample_sphere(equirect_bgr: np.ndarray, azimuth_rad: np.ndarray, elevation_
     return cv2.remap(padded, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
+def _checked(equirect_bgr: np.ndarray, width_px: int, height_px: int, fov_name: str, fov: float) -> tuple:
+    """The photo, the output size and a field of view (< π), validated."""
+    eq = bgr_image("equirect_bgr", equirect_bgr)
+    w = int(positive_float("width_px", width_px))
+    h = int(positive_float("height_px", height_px))
+    f = positive_float(fov_name, fov)
+    if f >= math.pi:
+        raise InputError(f"{fov_name} must be < π, got {f!r}")
+    return eq, w, h, f
+
+
 def panorama_from_equirectangular(
     equirect_bgr: np.ndarray,
     width_px: int = 1024,
@@ -109,12 +120,7 @@ def panorama_from_equirectangular(
         ``azimuth(u) = azimuth_col0_rad − 2π·u/W`` in the robot frame, which is
         ``heading_rad + azimuth(u)`` in the photo's frame.
     """
-    eq = bgr_image("equirect_bgr", equirect_bgr)
-    w = int(positive_float("width_px", width_px))
-    h = int(positive_float("height_px", height_px))
-    fov = positive_float("fov_v_rad", fov_v_rad)
-    if fov >= math.pi:
-        raise InputError(f"fov_v_rad must be < π, got {fov!r}")
+    eq, w, h, fov = _checked(equirect_bgr, width_px, height_px, "fov_v_rad", fov_v_rad)
     f = (h / 2.0) / math.tan(fov / 2.0)
     u = np.arange(w, dtype=np.float64)
     v = np.arange(h, dtype=np.float64)
@@ -147,12 +153,7 @@ def camera_view_from_equirectangular(
         :meth:`CameraImage.azimuth_of_column` + ``heading_rad`` is the photo-frame
         azimuth of a column's centre ray (exact at pitch 0).
     """
-    eq = bgr_image("equirect_bgr", equirect_bgr)
-    w = int(positive_float("width_px", width_px))
-    h = int(positive_float("height_px", height_px))
-    fov = positive_float("hfov_rad", hfov_rad)
-    if fov >= math.pi:
-        raise InputError(f"hfov_rad must be < π, got {fov!r}")
+    eq, w, h, fov = _checked(equirect_bgr, width_px, height_px, "hfov_rad", hfov_rad)
     heading = finite_float("heading_rad", heading_rad)
     yaw = finite_float("yaw_in_robot_rad", yaw_in_robot_rad)
     pitch = finite_float("pitch_rad", pitch_rad)

@@ -72,8 +72,10 @@ class SensorConfig:
         A reference gathers the clouds and camera views taken while the robot stayed within
         ``stationary_radius_m`` of its position at the reference time, at most
         ``reference_window_s`` before or after.
-    panorama_width_px, panorama_fov_v_rad
-        Grid of the stitched reference panoramas (fov default: the band all views cover).
+    panorama_width_px
+        Columns of the stitched reference panoramas (over 360°).
+    panorama_fov_v_rad
+        Their vertical field of view (rad; default: the band all views cover).
     """
 
     odometry_topic: str | None = None
