@@ -35,6 +35,7 @@ from factorloc._validate import nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Odometry
+from factorloc.verdicts import ROUNDING_TOLERANCE
 
 __all__ = [
     "CHI2_3SIGMA_2DOF",
@@ -285,7 +286,9 @@ def _min_slope(excess: np.ndarray, per: np.ndarray, allowed: int) -> float | Non
         return None
     need = np.sort(excess[bad & (per > 0.0)] / per[bad & (per > 0.0)])[::-1]
     room = allowed - fixed
-    return float(need[room]) if room < need.size else 0.0
+    # the relation at the boundary lies exactly on 3σ: widen by the rounding tolerance so that its
+    # verdict (inside) does not hang on the last bit of σ = k·d
+    return float(need[room]) * (1.0 + ROUNDING_TOLERANCE) if room < need.size else 0.0
 
 
 def _fit_position(res: Sequence[OdometryResiduals], tail: float) -> tuple[float, float]:
