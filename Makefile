@@ -47,6 +47,8 @@ $(STAMP): pyproject.toml $(LOCK)
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -c $(LOCK) -e ".[dev,docs]"
+	@# compile the ICP kernels now (numba caches them): the first `factorloc localize` then starts in seconds
+	$(BIN)/python -c "import logging; logging.basicConfig(level=logging.INFO, format='%(message)s'); import factorloc.jit as j; j.warm_up()"
 	@touch $(STAMP)
 
 setup: $(STAMP)

@@ -4,6 +4,7 @@ from factorloc.config import Config
 from factorloc.errors import ConfigError, DatasetError, FactorlocError, FusionError, InputError
 from factorloc.fusion import FusionStrategy, GraphFusion, ProductFusion
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.odometry_model import OdometryModel, fit_odometry_model
 from factorloc.pipeline import Localizer, fuse, localize
 from factorloc.types import (
     CameraImage,
@@ -37,6 +38,7 @@ __all__ = [
     "Localization",
     "Localizer",
     "Odometry",
+    "OdometryModel",
     "Panorama",
     "PointCloud",
     "Pose2",
@@ -46,6 +48,7 @@ __all__ = [
     "Scan",
     "StepReport",
     "StepStatus",
+    "fit_odometry_model",
     "fuse",
     "localize",
     "wrap_angle",

@@ -18,6 +18,7 @@ from rich.console import Console
 from rich.table import Table
 
 import factorloc
+from factorloc import cli_convert, jit
 from factorloc.errors import FactorlocError, InputError
 
 app = typer.Typer(
@@ -45,6 +46,8 @@ def main(
     ] = None,
 ) -> None:
     """factorloc command line."""
+    # the first run on a machine compiles the ICP kernels: say so (on stderr, so that --json output stays clean)
+    jit.on_first_compile(lambda msg: Console(stderr=True).print(f"[dim]{msg}[/]"))
 
 
 # ----------------------------------------------------------------------------
@@ -719,6 +722,8 @@ def demo(
     )
     console.print("[dim]Next: factorloc evaluate SCENARIO --plot DIR, factorloc simulate, factorloc bench; docs/evaluation.md[/]")
 
+
+cli_convert.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()

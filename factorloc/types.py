@@ -110,9 +110,11 @@ class Estimate:
         k×k covariance of ``values`` (m², rad²), world frame. Per-axis estimates
         (the patent's case) have a diagonal one; use :meth:`heading`,
         :meth:`position` or :meth:`pose` to build from sigmas.
-    reliable, reason
-        The estimator's own verdict and a human-readable reason. Without a ``reason``, an estimate with
-        ``checks`` gets the one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
+    reliable
+        The estimator's own verdict.
+    reason
+        A human-readable reason for it. Without a ``reason``, an estimate with ``checks`` gets the
+        one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
     diagnostics
         Free-form figures for people and plots: match count, peak correlation, residual, scale… Nothing in
         the library decides on them: decisions travel as ``checks`` and ``seed``.
@@ -398,6 +400,13 @@ class Panorama(_ImageSize):
             raise InputError(f"Panorama.fov_v_rad must be < π (cylindrical), got {fov!r}")
         object.__setattr__(self, "fov_v_rad", fov)
         object.__setattr__(self, "azimuth_col0_rad", finite_float("Panorama.azimuth_col0_rad", self.azimuth_col0_rad))
+
+    @classmethod
+    def from_images(cls, images: Sequence[CameraImage], yaws_rad: Sequence[float], **kwargs: Any) -> Panorama:
+        """Stitch pinhole views taken at known yaws: :func:`factorloc.vision.panoramas.panorama_from_images`."""
+        from factorloc.vision.panoramas import panorama_from_images
+
+        return panorama_from_images(images, yaws_rad, **kwargs)
 
     @property
     def rad_per_px(self) -> float:

@@ -292,7 +292,12 @@ def _arr_eq(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 def _panorama_equal(a: Panorama | None, b: Panorama | None) -> bool:
     if a is None or b is None:
         return a is b
-    return _arr_eq(a.image_bgr, b.image_bgr) and a.fov_v_rad == b.fov_v_rad and a.azimuth_col0_rad == b.azimuth_col0_rad
+    return (
+        _arr_eq(a.image_bgr, b.image_bgr)
+        and a.fov_v_rad == b.fov_v_rad
+        and a.azimuth_col0_rad == b.azimuth_col0_rad
+        and _arr_eq(a.seen_columns, b.seen_columns)
+    )
 
 
 def _camera_equal(a: CameraImage, b: CameraImage) -> bool:
@@ -476,13 +481,22 @@ def _write_image(path: Path, image_bgr: np.ndarray, jpeg_quality: int) -> None:
 
 def _write_panorama(root: Path, rel: Path, pano: Panorama) -> dict[str, Any]:
     _write_image(root / rel, pano.image_bgr, 100)
-    return {
+    entry = {
         "file": rel.as_posix(),
         "width_px": pano.width_px,
         "height_px": pano.height_px,
         "fov_v_rad": pano.fov_v_rad,
         "azimuth_col0_rad": pano.azimuth_col0_rad,
     }
+    if pano.seen_columns is not None:  # absent: every column seen (manifests without the field read the same)
+        entry["seen_columns"] = _column_runs(pano.seen_columns)
+    return entry
+
+
+def _column_runs(seen: np.ndarray) -> list[list[int]]:
+    """``[[start, stop), …]`` of the runs of True in a bool mask (the manifest form of ``Panorama.seen_columns``)."""
+    d = np.diff(np.concatenate([[0], seen.astype(np.int8), [0]]))
+    return [[int(a), int(b)] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)]
 
 
 def _write_points(root: Path, rel: Path, points: np.ndarray) -> dict[str, Any]:
@@ -783,8 +797,24 @@ def _read_panorama(ctx: _Ctx, d: Any, where: str) -> Panorama:
     img = ctx.image(d, where)
     fov = ctx.number(d, "fov_v_rad", where, positive=True)
     az0 = ctx.number(d, "azimuth_col0_rad", where, required=False, default=math.pi)
+    runs = ctx.get(d, "seen_columns", where, required=False)
+    seen = None
+    if runs is not None:
+        w = img.shape[1]
+        ok = isinstance(runs, list) and all(
+            isinstance(r, list)
+            and len(r) == 2
+            and all(isinstance(v, int) and not isinstance(v, bool) for v in r)
+            and 0 <= r[0] < r[1] <= w
+            for r in runs
+        )
+        if not ok:
+            raise ctx.fail(f"{where}.seen_columns", f"must be a list of [start, stop) column runs within [0, {w}], got {runs!r}")
+        seen = np.zeros(w, dtype=bool)
+        for a, b in runs:
+            seen[a:b] = True
     with ctx.at(where):
-        return Panorama(img, fov, az0)
+        return Panorama(img, fov, az0, seen)
 
 
 def scenario_files(path: str | Path) -> Sequence[Path]:
