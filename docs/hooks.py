@@ -7,13 +7,22 @@
   CI: ``make test`` builds the site.
 - ``docs/assets/generated/home_localization.png`` (git-ignored) is drawn by
   localizing one query of the shipped sample scenario.
+- Maths is rendered at build time: the TeX that ``pymdownx.arithmatex`` (generic mode)
+  leaves in ``<span/div class="arithmatex">`` becomes MathML (``latex2mathml``), which
+  browsers draw natively, so the site needs no script and no network to show formulas.
+- The notebook pages' template (mkdocs-jupyter, nbconvert's lab template) carries a module
+  script that imports mermaid from a CDN when the page holds a mermaid diagram; the
+  tutorials hold none, so the script is dropped from pages without one (the built site
+  then references no CDN; ``tests/docs/test_site.py`` checks it).
 """
 
 from __future__ import annotations
 
 import hashlib
+import html
 import logging
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +38,42 @@ GENERATED = DOCS / "assets" / "generated"
 def on_pre_build(config: Any, **kwargs: Any) -> None:
     execute_notebooks()
     home_figure()
+
+
+_MATH = re.compile(r'<(span|div) class="arithmatex">(.*?)</\1>', re.S)
+_DELIMITERS = {"\\(": ("\\)", "inline"), "\\[": ("\\]", "block")}
+
+
+def _mathml(match: re.Match[str]) -> str:
+    from latex2mathml.converter import convert
+
+    tag, body = match.group(1), html.unescape(match.group(2)).strip()
+    for opening, (closing, display) in _DELIMITERS.items():
+        if body.startswith(opening) and body.endswith(closing):
+            tex = body[len(opening) : -len(closing)].strip()
+            return f'<{tag} class="arithmatex">{convert(tex, display=display)}</{tag}>'
+    raise ValueError(f"unexpected arithmatex output: {body[:80]!r}")
+
+
+def render_maths(page_html: str) -> str:
+    """Replace arithmatex's TeX by MathML (see the module docstring)."""
+    return _MATH.sub(_mathml, page_html)
+
+
+def on_page_content(page_html: str, **kwargs: Any) -> str:
+    return render_maths(page_html)
+
+
+_MERMAID_LOADER = re.compile(r'<script type="module">(?:(?!</script>).)*?mermaid\.esm\.min\.mjs.*?</script>', re.S)
+
+
+_MERMAID_DIAGRAM = re.compile(r'<[a-z]+ [^>]*class="[^"]*\bjp-Mermaid\b')
+
+
+def on_post_page(output: str, **kwargs: Any) -> str:
+    if _MERMAID_DIAGRAM.search(output):
+        return output
+    return _MERMAID_LOADER.sub("", output)
 
 
 def _inputs_digest(source: Path) -> str:

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from factorloc.errors import ConfigError, DatasetError, FactorlocError, FusionError, InputError
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.odometry_model import OdometryModel, fit_odometry_model
 from factorloc.types import (
     CameraImage,
     Component,
@@ -74,6 +75,7 @@ __all__ = [
     "Localization",
     "Localizer",
     "Odometry",
+    "OdometryModel",
     "Panorama",
     "PointCloud",
     "Pose2",
@@ -83,6 +85,7 @@ __all__ = [
     "Scan",
     "StepReport",
     "StepStatus",
+    "fit_odometry_model",
     "fuse",
     "localize",
     "wrap_angle",

@@ -19,6 +19,7 @@ import typer
 from rich.console import Console
 
 import factorloc
+from factorloc import cli_convert, jit
 from factorloc.cli_render import (
     evaluation_steps_table,
     evaluation_summary_table,
@@ -75,6 +76,8 @@ def main(
     ] = None,
 ) -> None:
     """factorloc command line."""
+    # the first run on a machine compiles the ICP kernels: say so (on stderr, so that --json output stays clean)
+    jit.on_first_compile(lambda msg: Console(stderr=True).print(f"[dim]{msg}[/]"))
 
 
 def _load_config(path: Path | None) -> factorloc.Config | None:
@@ -371,6 +374,8 @@ def demo(
     )
     console.print("[dim]Next: factorloc evaluate SCENARIO --plot DIR, factorloc simulate, factorloc bench; docs/evaluation.md[/]")
 
+
+cli_convert.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()

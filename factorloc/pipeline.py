@@ -174,8 +174,10 @@ def localize(
 
     Parameters
     ----------
-    reference, query
-        What the robot knows and what it senses now (see :mod:`factorloc.types`).
+    reference
+        What the robot knows: a place's panorama, scan or cloud and its pose (:class:`~factorloc.types.Reference`).
+    query
+        What the robot senses now: images, scan or cloud, odometry (:class:`~factorloc.types.Query`).
     config
         Thresholds, seeds and the fusion strategy (defaults if None); kept in the result.
     strategy

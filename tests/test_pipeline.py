@@ -180,10 +180,10 @@ def test_kidnapped_robot_whose_scan_fits_nowhere_near_its_odometry_is_not_locali
     assert audited >= 2  # the corridor ones at least: their scans fit the reference nowhere
 
 
-def _single_wall_case() -> tuple[Reference, Query, Pose2, Estimate, np.ndarray]:
+def _single_wall_case(noise_seed: int = 3) -> tuple[Reference, Query, Pose2, Estimate, np.ndarray]:
     """One 8 m wall along the world diagonal y = x (both world σx, σy of "along it" are large), seen by the
     reference and by the query; an odometry 20 cm off along the wall and 10 cm off across it."""
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(noise_seed)
     t = np.linspace(-4.0, 4.0, 400)
     wall = np.column_stack([t, t])
     along = np.array([1.0, 1.0]) / math.sqrt(2.0)
@@ -197,10 +197,16 @@ def _single_wall_case() -> tuple[Reference, Query, Pose2, Estimate, np.ndarray]:
     return ref, query, truth, odo, along
 
 
-def test_a_single_wall_pins_the_position_across_it_and_the_odometry_gives_it_along() -> None:
+# the smallest eigenvalue of one wall's normal scatter is 0 in theory and ±1e-16 after rounding: before it was
+# compared with a tolerance, 12 of these 24 noise seeds flipped the verdict (issue 13)
+NOISE_SEEDS = range(24)
+
+
+@pytest.mark.parametrize("noise_seed", NOISE_SEEDS)
+def test_a_single_wall_pins_the_position_across_it_and_the_odometry_gives_it_along(noise_seed: int) -> None:
     from factorloc.estimators.icp import IcpStep
 
-    ref, query, truth, odo, along = _single_wall_case()
+    ref, query, truth, odo, along = _single_wall_case(noise_seed)
     loc = localize(ref, query, steps=[Recorder("odometry", odo), IcpStep()])
     icp = loc.step("icp")
     assert icp.status == StepStatus.FUSED and icp.estimate.kind == "full"
@@ -217,10 +223,11 @@ def test_a_single_wall_pins_the_position_across_it_and_the_odometry_gives_it_alo
     assert sigma_across < 0.03 and abs(float(e @ across)) < 3.0 * sigma_across
 
 
-def test_a_single_wall_alone_leaves_the_position_undetermined() -> None:
+@pytest.mark.parametrize("noise_seed", NOISE_SEEDS)
+def test_a_single_wall_alone_leaves_the_position_undetermined(noise_seed: int) -> None:
     from factorloc.estimators.icp import IcpStep
 
-    ref, query, truth, odo, _ = _single_wall_case()
+    ref, query, truth, odo, _ = _single_wall_case(noise_seed)
     loc = localize(ref, query, steps=[Recorder("odometry", odo), IcpStep()])
     # the ICP estimate without its seed: it knows the heading and the offset across the wall only
     alone = fuse([loc.step("icp").estimate])

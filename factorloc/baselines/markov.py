@@ -53,7 +53,13 @@ class MarkovGridLocalization:
         Cell size in x and y (m).
     n_theta
         Number of heading bins over [-π, π).
-    motion, gating, outlier_probability, continuous
+    motion
+        As in :class:`~factorloc.baselines.mcl.MonteCarloLocalization`.
+    gating
+        As in :class:`~factorloc.baselines.mcl.MonteCarloLocalization`.
+    outlier_probability
+        As in :class:`~factorloc.baselines.mcl.MonteCarloLocalization`.
+    continuous
         As in :class:`~factorloc.baselines.mcl.MonteCarloLocalization`.
     uniform_mix
         Share of the predicted belief spread uniformly over the grid (recovery from kidnapping).

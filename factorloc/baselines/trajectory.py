@@ -117,8 +117,10 @@ def generate_trajectory_scenario(
         Waypoints stay within this distance of the reference (m).
     kidnaps
         How many times the robot is carried away without the odometry knowing.
-    faults, fault_probability
-        Per-query faults (a subset of :data:`QUERY_FAULTS`) and the probability of one per query.
+    faults
+        Per-query faults (a subset of :data:`QUERY_FAULTS`).
+    fault_probability
+        The probability of a fault per query.
     no_depth_stretches
         ``(first, last)`` query index ranges (inclusive) without depth cloud and scan.
     config

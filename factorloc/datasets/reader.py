@@ -261,8 +261,28 @@ def _read_panorama(ctx: _Ctx, d: Any, where: str) -> Panorama:
     img = ctx.image(d, where)
     fov = ctx.number(d, "fov_v_rad", where, positive=True)
     az0 = ctx.number(d, "azimuth_col0_rad", where, required=False, default=math.pi)
+    seen = _seen_columns(ctx, ctx.get(d, "seen_columns", where, required=False), img.shape[1], where)
     with ctx.at(where):
-        return Panorama(img, fov, az0)
+        return Panorama(img, fov, az0, seen)
+
+
+def _seen_columns(ctx: _Ctx, runs: Any, width: int, where: str) -> np.ndarray | None:
+    """``Panorama.seen_columns`` from its manifest form, ``[[start, stop), …]`` column runs (None: all seen)."""
+    if runs is None:
+        return None
+    ok = isinstance(runs, list) and all(
+        isinstance(r, list)
+        and len(r) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in r)
+        and 0 <= r[0] < r[1] <= width
+        for r in runs
+    )
+    if not ok:
+        raise ctx.fail(f"{where}.seen_columns", f"must be a list of [start, stop) column runs within [0, {width}], got {runs!r}")
+    seen = np.zeros(width, dtype=bool)
+    for a, b in runs:
+        seen[a:b] = True
+    return seen
 
 
 def scenario_files(path: str | Path) -> Sequence[Path]:

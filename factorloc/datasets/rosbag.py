@@ -38,6 +38,8 @@ __all__ = [
     "OdometryTrack",
     "ScanTrack",
     "laser_ranges_to_scan",
+    "message_stamp_s",
+    "open_bag",
     "pointcloud2_to_cloud",
     "read_laser_log",
     "read_odometry",
@@ -116,6 +118,28 @@ class OdometryTrack:
     def between(self, t1_s: float, t2_s: float) -> Pose2:
         """The odometry's relative motion ``T_robot(t1)_robot(t2) = odom(t1)⁻¹ · odom(t2)``."""
         return self.pose_at(t1_s).between(self.pose_at(t2_s))
+
+    def gap_s(self, t_s: float) -> float:
+        """Time (s) from ``t_s`` to the nearest pose of the track (how far :meth:`pose_at` interpolates from data)."""
+        ts = self.stamps_s
+        i = int(np.searchsorted(ts, t_s))
+        near = [abs(ts[j] - t_s) for j in (i - 1, i) if 0 <= j < len(ts)]
+        return float(min(near))
+
+    def bracket_s(self, t_s: float) -> float:
+        """Length (s) of the interval between the two poses around ``t_s`` (0 at a pose, inf outside the track)."""
+        ts = self.stamps_s
+        i = int(np.searchsorted(ts, t_s))
+        if i < len(ts) and ts[i] == t_s:
+            return 0.0
+        if i == 0 or i >= len(ts):
+            return math.inf
+        return float(ts[i] - ts[i - 1])
+
+    def path_length_m(self, t_s: float | np.ndarray) -> float | np.ndarray:
+        """Path length (m) travelled from the first pose to ``t_s`` (clamped to the track's span)."""
+        out = np.interp(t_s, self.stamps_s, self._cum_distance_m)  # type: ignore[attr-defined]
+        return float(out) if np.ndim(out) == 0 else out
 
     def distance_between(self, t1_s: float, t2_s: float) -> tuple[float, float]:
         """Path length (m) and summed absolute rotation (rad) travelled between two times."""
@@ -261,7 +285,8 @@ def _yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-def _stamp_s(msg: Any, bag_time_ns: int) -> float:
+def message_stamp_s(msg: Any, bag_time_ns: int) -> float:
+    """A message's time (s): its header stamp, or the bag's receive time when the stamp is 0 or absent."""
     header = getattr(msg, "header", None)
     if header is not None:
         st = header.stamp
@@ -274,7 +299,14 @@ def _stamp_s(msg: Any, bag_time_ns: int) -> float:
 # --------------------------------------------------------------------------
 # Readers
 # --------------------------------------------------------------------------
-def _open(path: str | Path):  # noqa: ANN202 - rosbags reader
+def open_bag(path: str | Path):  # noqa: ANN201 - rosbags.highlevel.AnyReader
+    """A (not yet opened) ``rosbags`` reader of a ROS 1 ``.bag``, a ROS 2 bag directory or an MCAP bag.
+
+    Raises
+    ------
+    DatasetError
+        When the path does not exist or rosbags cannot read it.
+    """
     from rosbags.highlevel import AnyReader
 
     p = Path(path)
@@ -284,6 +316,9 @@ def _open(path: str | Path):  # noqa: ANN202 - rosbags reader
         return AnyReader([p])
     except Exception as exc:  # rosbags raises its own hierarchy
         raise DatasetError(f"cannot open bag {p}: {exc}") from exc
+
+
+_open = open_bag
 
 
 def _messages(path: str | Path, topic: str, msgtypes: tuple[str, ...]) -> Iterator[tuple[Any, int]]:
@@ -315,7 +350,7 @@ def read_odometry(path: str | Path, topic: str = "/odom") -> OdometryTrack:
     for msg, t_ns in _messages(path, topic, ("nav_msgs/msg/Odometry",)):
         p = msg.pose.pose
         q = p.orientation
-        stamps.append(_stamp_s(msg, t_ns))
+        stamps.append(message_stamp_s(msg, t_ns))
         poses.append((p.position.x, p.position.y, _yaw_from_quaternion(q.x, q.y, q.z, q.w)))
     if not stamps:
         raise DatasetError(f"topic {topic!r} of {path} holds no odometry message")
@@ -349,7 +384,7 @@ def read_scans(
                 T_robot_laser=T_robot_laser,
             )
         )
-        stamps.append(_stamp_s(msg, t_ns))
+        stamps.append(message_stamp_s(msg, t_ns))
         frame = msg.header.frame_id
     if not scans:
         raise DatasetError(f"topic {topic!r} of {path} holds no LaserScan message")
@@ -360,7 +395,7 @@ def read_point_clouds(path: str | Path, topic: str) -> tuple[np.ndarray, tuple[P
     """Read ``sensor_msgs/PointCloud2`` messages of ``topic``: (N,) stamps in s and N clouds."""
     stamps, clouds = [], []
     for msg, t_ns in _messages(path, topic, ("sensor_msgs/msg/PointCloud2",)):
-        stamps.append(_stamp_s(msg, t_ns))
+        stamps.append(message_stamp_s(msg, t_ns))
         clouds.append(pointcloud2_to_cloud(msg))
     if not clouds:
         raise DatasetError(f"topic {topic!r} of {path} holds no PointCloud2 message")

@@ -178,13 +178,22 @@ def _write_image(path: Path, image_bgr: np.ndarray, jpeg_quality: int) -> None:
 
 def _write_panorama(root: Path, rel: Path, pano: Panorama) -> dict[str, Any]:
     _write_image(root / rel, pano.image_bgr, 100)
-    return {
+    entry = {
         "file": rel.as_posix(),
         "width_px": pano.width_px,
         "height_px": pano.height_px,
         "fov_v_rad": pano.fov_v_rad,
         "azimuth_col0_rad": pano.azimuth_col0_rad,
     }
+    if pano.seen_columns is not None:  # absent: every column seen (manifests without the field read the same)
+        entry["seen_columns"] = _column_runs(pano.seen_columns)
+    return entry
+
+
+def _column_runs(seen: np.ndarray) -> list[list[int]]:
+    """``[[start, stop), …]`` of the runs of True in a bool mask (the manifest form of ``Panorama.seen_columns``)."""
+    d = np.diff(np.concatenate([[0], seen.astype(np.int8), [0]]))
+    return [[int(a), int(b)] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True)]
 
 
 def _write_points(root: Path, rel: Path, points: np.ndarray) -> dict[str, Any]:

@@ -90,7 +90,7 @@ class CompassConfig:
         reference preparation is slower) or ``"orb"``. See ``benchmarks/bench_vision.py``.
     n_features_reference, n_features_query
         Keypoint budgets of the reference panorama and of each query view.
-    query_scale, query_min_detect_px, reference_scale
+    query_scale, reference_scale
         Detection scale of the query views (on the reference grid) and of the reference panorama:
         each image is area-downsampled by it before detection (:func:`factorloc.vision.keypoints.detect`).
         SIFT's cost is its first, doubled octave: detecting a query view at half the grid's
@@ -99,6 +99,8 @@ class CompassConfig:
         is never reduced below ``query_min_detect_px`` pixels (≈ 90×130; smaller views yield
         too few keypoints for ``min_inliers``): its scale is ``min(1, max(query_scale,
         √(query_min_detect_px / pixels)))`` (:func:`detection_scale`).
+    query_min_detect_px
+        The fewest pixels a query view is reduced to before detection (see ``query_scale``).
     query_octave_layers
         SIFT's layers per octave for the query views (OpenCV's ``nOctaveLayers``).
     query_sift_sigma
@@ -130,8 +132,10 @@ class CompassConfig:
         simulated apartment (``factorloc simulate --world apartment --queries 300 --seed 7``).
     max_sigma_rad
         Unreliable above this σθ2.
-    sigma_floor_rad, max_effective_inliers
-        The σ model (see module docstring).
+    sigma_floor_rad
+        The σ floor of the σ model (rad; see the module docstring).
+    max_effective_inliers
+        The most inliers the σ model counts (see the module docstring).
     parallax_correction
         With a reference cloud/scan and a position hypothesis, vote with
         parallax-free world bearings (:mod:`factorloc.vision.depth`).
@@ -149,11 +153,13 @@ class CompassConfig:
         Seeded search: look-alikes this far beyond the window still take part in the ratio test.
     seed_consistency_n_sigma
         Unreliable when θ2 is further than this many combined σ from the seed heading.
-    resection, depth_relative_sigma
+    resection
         With a position hypothesis and reference depth, refine heading *and* position from the
         inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
         heading's marginal σ (features at several depths and directions separate a turn from a
-        sideways shift); ``depth_relative_sigma`` is the relative error of the reference ranges.
+        sideways shift).
+    depth_relative_sigma
+        The relative error of the reference ranges in the resection.
         A reference range's σ is the larger of ``depth_relative_sigma``·D and half the range spread
         around it in the depth map (depth edges): a dozen bearings on one wall plus two far ones whose
         coarse ranges were wrong made a confidently wrong resection (3.8°, 4.3σ, on the simulated apartment).

@@ -103,8 +103,10 @@ class IcpConfig:
         the candidates are ranked and judged ambiguous by their scores at the
         solution (measured: with ``icp``'s looser convergence one Intel loop
         relation in 242 flipped from "ambiguous" to a reliable 180° error).
-    kernel, kernel_scale_m
-        Robust kernel (``"cauchy"``, ``"huber"``, ``"tukey"``, ``"l2"``) and its scale.
+    kernel
+        Robust kernel (``"cauchy"``, ``"huber"``, ``"tukey"``, ``"l2"``).
+    kernel_scale_m
+        The kernel's scale (m).
     global_init
         Use the correlative global search when no reliable seed exists or the
         seeded ICP is unreliable.
@@ -288,8 +290,10 @@ class IcpConfig:
         timing error, map changes).
     chamfer_scale
         σ = chamfer_scale · Chamfer distance for the ``"chamfer"`` covariance.
-    min_fitness, max_rmse_m, max_chamfer_m, max_sigma_position_m, max_sigma_heading_rad, min_inliers
+    min_fitness, max_rmse_m, max_chamfer_m, max_sigma_position_m, max_sigma_heading_rad
         The reliability test.
+    min_inliers
+        The reliability test too: the fewest correspondences.
     max_violation
         Reliability test too: at most this fraction of either scan may lie in
         space the other scan's sensor saw empty (free-space consistency, see

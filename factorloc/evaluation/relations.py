@@ -51,10 +51,11 @@ from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
 from factorloc.geometry import Pose2
+from factorloc.odometry_model import OdometryModel
 from factorloc.pipeline import Localizer
 from factorloc.registration.icp2d import prepare_target
 from factorloc.registration.open3d_peer import open3d_icp
-from factorloc.types import Estimate, Odometry, Query, Reference, StepStatus
+from factorloc.types import Estimate, Query, Reference, StepStatus
 
 __all__ = [
     "METHODS",
@@ -106,46 +107,6 @@ def read_relations(path: str | Path) -> Relations:
     if a.shape[1] != 8:
         raise DatasetError(f"relations file {p} must have 8 columns (t1 t2 x y z roll pitch yaw), got {a.shape[1]}")
     return Relations(a[:, 0].copy(), a[:, 1].copy(), a[:, [2, 3, 7]].copy())
-
-
-@dataclass(frozen=True)
-class OdometryModel:
-    """σ of the raw wheel odometry of the two logs, as a function of the motion (see :meth:`Odometry.from_distance`).
-
-    σxy = max(5 cm, 20 % of the path) and σθ = max(0.3°, 15 % of the rotation
-    + 0.08 rad per metre), fitted on all local relations of both logs (path
-    < 5 m: 1773 Intel, 1191 ACES) for an honest *tail*: the confidently-wrong
-    test of the benchmark is a 3σ test, so what matters is how often the
-    odometry lies beyond 3σ (0.27 % for a Gaussian). These old wheel
-    odometries are heavy-tailed and the ground truth has an error of its own
-    of a few centimetres: with the previous model (3 cm floor, 10 % of the
-    rotation + 0.05 rad/m) 1.9 % (Intel) and 0.7 % (ACES) of the positions
-    and 2.2 % / 0.8 % of the headings lay beyond 3σ, which made the fused
-    result confidently wrong wherever ICP was unreliable. Now 0.62 % / 0.34 %
-    of the positions and 0.45 % / 0.08 % of the headings, at a mean NEES of
-    0.63 / 0.66 (position, 2 dof) and 0.73 / 0.32 (heading, 1 dof):
-    cautious in the bulk, the price of the tail. (The patent's example of 5 %
-    drift gave an Intel position NEES of 37.)
-    """
-
-    drift_ratio: float = 0.2
-    min_sigma_m: float = 0.05
-    heading_drift_ratio: float = 0.15
-    heading_drift_rad_per_m: float = 0.08
-    min_sigma_rad: float = math.radians(0.3)
-
-    def odometry(self, T_world_robot: Pose2, distance_m: float, rotation_rad: float) -> Odometry:
-        """The :class:`~factorloc.types.Odometry` of a relative motion with this model's σ."""
-        return Odometry.from_distance(
-            T_world_robot,
-            distance_m,
-            rotation_rad,
-            drift_ratio=self.drift_ratio,
-            heading_drift_ratio=self.heading_drift_ratio,
-            heading_drift_rad_per_m=self.heading_drift_rad_per_m,
-            min_sigma_m=self.min_sigma_m,
-            min_sigma_rad=self.min_sigma_rad,
-        )
 
 
 @dataclass(frozen=True)
@@ -229,8 +190,10 @@ def relations_benchmark(
 
     Parameters
     ----------
-    log, relations
-        The laser log (scans and odometry) and its ground-truth relations.
+    log
+        The laser log (scans and odometry).
+    relations
+        Its ground-truth relations.
     methods
         Any of :data:`METHODS`.
     config

@@ -341,7 +341,13 @@ def evaluate(
         A :class:`~factorloc.fusion.base.FusionStrategy` (per query) or a
         :class:`~factorloc.fusion.base.SequentialStrategy` (memory across
         queries, fed in scenario order). Default: the one ``config.fusion`` names.
-    config, seeded, steps, progress
+    config
+        As in :func:`run_hierarchy`.
+    seeded
+        As in :func:`run_hierarchy`.
+    steps
+        As in :func:`run_hierarchy`.
+    progress
         As in :func:`run_hierarchy`.
 
     Returns

@@ -9,6 +9,7 @@
 - :mod:`~factorloc.registration.open3d_peer` — Open3D's ICP on 2D scans, the peer we compare with.
 """
 
+from factorloc.registration import _numba  # noqa: F401 - sets numba's cache directory before the kernels below
 from factorloc.registration.covariance import bias_covariance, censi_covariance, chamfer_covariance, hessian_covariance
 from factorloc.registration.global_search import Candidate, GlobalSearchParams, reference_fields, search
 from factorloc.registration.icp2d import IcpParams, IcpResult, PreparedScan, align, prepare_target

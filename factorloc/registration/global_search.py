@@ -204,8 +204,10 @@ def search(
     ----------
     reference_m, query_m
         M×2 and N×2 points (metres), each in its own robot frame.
-    center_m, params.radius_m
-        The translation window ``center ± radius`` (reference frame).
+    params
+        The search's lattice, windows and scoring (:class:`GlobalSearchParams`).
+    center_m
+        Centre of the translation window ``center ± params.radius_m`` (reference frame, m).
     heading_rad, heading_half_width_rad
         The heading window; the default searches the full circle.
     fields

@@ -75,8 +75,10 @@ class IcpParams:
         Nearest-neighbour distances are truncated at this value in the
         Chamfer distance (so that the parts of the scans that do not overlap
         weigh a bounded amount).
-    normal_k, normal_radius_m
-        Neighbourhood of the PCA line normals of the target.
+    normal_k
+        Neighbours of the PCA line normals of the target.
+    normal_radius_m
+        Radius of that neighbourhood (m).
     min_normal_quality
         Target points whose line fit quality (1 − λmin/λmax) is lower do not
         take part (corners, isolated returns).

@@ -29,6 +29,7 @@ import numpy as np
 from factorloc._validate import nonnegative_float, positive_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
+from factorloc.sim.determinism import deterministic
 from factorloc.sim.world import Decal, Face, Material, Obstacle, World
 
 _CLOTHES = ("carpet", "gravel", "grass", "wallpaper")
@@ -41,6 +42,7 @@ def _image(name: str, image_bgr: np.ndarray) -> np.ndarray:
     return image_bgr
 
 
+@deterministic
 def relight(
     image_bgr: np.ndarray,
     gain: float = 1.0,
@@ -82,6 +84,7 @@ def relight(
     return out
 
 
+@deterministic
 def motion_blur(image_bgr: np.ndarray, length_px: float, angle_rad: float = 0.0) -> np.ndarray:
     """Linear motion blur: the image averaged along a ``length_px`` segment at ``angle_rad`` (0 = horizontal)."""
     img = _image("image_bgr", image_bgr)

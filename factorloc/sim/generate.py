@@ -35,6 +35,7 @@ import numpy as np
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.sim.determinism import deterministic
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
 from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import DriftModel, random_walk, simulate_odometry
@@ -284,6 +285,7 @@ def _cloud(
     return cloud
 
 
+@deterministic
 def generate_scenario(
     world: World | str,
     n_queries: int,

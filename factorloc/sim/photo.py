@@ -18,20 +18,25 @@ the heading truth of a query is the ``heading_rad`` it was cut at. There is no
 parallax: these views test appearance changes, not motion.
 
 Photometric faults (:func:`photometric`) and occlusions (:func:`occlude`)
-return new images; inputs are never modified.
+return new images; inputs are never modified. The resampling itself is public in
+:mod:`factorloc.vision.panoramas` (:func:`load_equirectangular`, ``reference_panorama`` =
+:func:`~factorloc.vision.panoramas.panorama_from_equirectangular`, ``camera_view`` =
+:func:`~factorloc.vision.panoramas.camera_view_from_equirectangular`), re-exported here.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import cv2
 import numpy as np
 
-from factorloc._validate import bgr_image, finite_float, nonnegative_float, positive_float
+from factorloc._validate import bgr_image, nonnegative_float, positive_float
 from factorloc.errors import InputError
-from factorloc.types import CameraImage, Panorama
+from factorloc.types import Panorama
+from factorloc.vision.panoramas import camera_view_from_equirectangular as camera_view
+from factorloc.vision.panoramas import load_equirectangular
+from factorloc.vision.panoramas import panorama_from_equirectangular as reference_panorama
 
 __all__ = [
     "load_equirectangular",
@@ -42,26 +47,6 @@ __all__ = [
     "photometric",
     "occlude",
 ]
-
-
-def load_equirectangular(path: str | Path) -> np.ndarray:
-    """Read an equirectangular photograph as a BGR uint8 array (H×W×3, W = 2H expected).
-
-    Raises
-    ------
-    InputError
-        When the file is missing, unreadable, or not a 2:1 colour image.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"equirectangular photo not found: {p}")
-    image = cv2.imread(str(p), cv2.IMREAD_COLOR)
-    if image is None:
-        raise InputError(f"equirectangular photo {p} could not be decoded as an image")
-    h, w = image.shape[:2]
-    if abs(w - 2 * h) > 1:
-        raise InputError(f"equirectangular photo {p} must be 2:1 (W = 2H), got {w}×{h}")
-    return image
 
 
 def synthetic_equirectangular(
@@ -98,69 +83,6 @@ def synthetic_equirectangular(
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _check_equirect(equirect_bgr: np.ndarray) -> np.ndarray:
-    return bgr_image("equirect_bgr", equirect_bgr)
-
-
-def _sample_sphere(equirect_bgr: np.ndarray, azimuth_rad: np.ndarray, elevation_rad: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of directions (azimuth CCW, elevation up; same-shape float arrays) in the photo."""
-    he, we = equirect_bgr.shape[:2]
-    pad = 2
-    # horizontal wrap-around by padding columns; rows are clamped (poles)
-    padded = cv2.copyMakeBorder(equirect_bgr, pad, pad, pad, pad, cv2.BORDER_WRAP)
-    padded[:pad] = padded[pad]
-    padded[-pad:] = padded[-pad - 1]
-    u = np.mod((math.pi - azimuth_rad) * we / (2.0 * math.pi), we)
-    v = (math.pi / 2.0 - elevation_rad) * he / math.pi - 0.5
-    map_x = (u + pad).astype(np.float32)
-    map_y = (np.clip(v, -0.5, he - 0.5) + pad).astype(np.float32)
-    return cv2.remap(padded, map_x, map_y, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-
-
-def reference_panorama(
-    equirect_bgr: np.ndarray,
-    width_px: int = 1024,
-    height_px: int = 160,
-    fov_v_rad: float = math.radians(60.0),
-    heading_rad: float = 0.0,
-    azimuth_col0_rad: float = math.pi,
-) -> Panorama:
-    """Resample the photo into a cylindrical :class:`Panorama` seen by a robot with heading ``heading_rad``.
-
-    Parameters
-    ----------
-    equirect_bgr
-        Equirectangular photo, H×W×3 BGR uint8.
-    width_px, height_px
-        Size of the panorama (columns cover 360°, rows cover ``fov_v_rad``).
-    fov_v_rad
-        Vertical field of view of the cylindrical band (rad, < π).
-    heading_rad
-        Heading of the robot in the photo's frame (rad, CCW); 0 for the reference.
-    azimuth_col0_rad
-        Robot-frame azimuth of column 0 (default π: the centre column looks forward).
-
-    Returns
-    -------
-    Panorama
-        ``azimuth(u) = azimuth_col0_rad − 2π·u/W`` in the robot frame, which is
-        ``heading_rad + azimuth(u)`` in the photo's frame.
-    """
-    eq = _check_equirect(equirect_bgr)
-    w = int(positive_float("width_px", width_px))
-    h = int(positive_float("height_px", height_px))
-    fov = positive_float("fov_v_rad", fov_v_rad)
-    if fov >= math.pi:
-        raise InputError(f"fov_v_rad must be < π, got {fov!r}")
-    f = (h / 2.0) / math.tan(fov / 2.0)
-    u = np.arange(w, dtype=np.float64)
-    v = np.arange(h, dtype=np.float64)
-    az = finite_float("heading_rad", heading_rad) + finite_float("azimuth_col0_rad", azimuth_col0_rad) - 2.0 * math.pi * u / w
-    el = np.arctan((h / 2.0 - v) / f)
-    az_grid, el_grid = np.meshgrid(az, el)
-    return Panorama(_sample_sphere(eq, az_grid, el_grid), fov_v_rad=fov, azimuth_col0_rad=azimuth_col0_rad)
-
-
 def panorama_view(
     equirect_bgr: np.ndarray,
     heading_rad: float,
@@ -170,49 +92,6 @@ def panorama_view(
 ) -> Panorama:
     """A query panorama of a robot with heading ``heading_rad`` (rad, photo frame) at the photo's point."""
     return reference_panorama(equirect_bgr, width_px, height_px, fov_v_rad, heading_rad=heading_rad)
-
-
-def camera_view(
-    equirect_bgr: np.ndarray,
-    heading_rad: float,
-    yaw_in_robot_rad: float = 0.0,
-    hfov_rad: float = math.radians(57.0),
-    width_px: int = 640,
-    height_px: int = 480,
-    pitch_rad: float = 0.0,
-) -> CameraImage:
-    """A pinhole view of a robot with heading ``heading_rad`` whose camera looks along ``yaw_in_robot_rad``.
-
-    Pixel ``(u, v)`` with principal point ``((W−1)/2, (H−1)/2)`` and focal
-    ``f = (W/2)/tan(hfov/2)`` looks along ``(f, cx − u, cy − v)`` in the camera
-    frame (x forward, y left, z up), tilted by ``pitch_rad`` (positive up),
-    then rotated by ``heading_rad + yaw_in_robot_rad`` about z.
-
-    Returns
-    -------
-    CameraImage
-        With ``hfov_rad``, ``yaw_in_robot_rad`` and ``pitch_rad`` set, so that
-        :meth:`CameraImage.azimuth_of_column` + ``heading_rad`` is the photo-frame
-        azimuth of a column's centre ray (exact at pitch 0).
-    """
-    eq = _check_equirect(equirect_bgr)
-    w = int(positive_float("width_px", width_px))
-    h = int(positive_float("height_px", height_px))
-    fov = positive_float("hfov_rad", hfov_rad)
-    if fov >= math.pi:
-        raise InputError(f"hfov_rad must be < π, got {fov!r}")
-    heading = finite_float("heading_rad", heading_rad)
-    yaw = finite_float("yaw_in_robot_rad", yaw_in_robot_rad)
-    pitch = finite_float("pitch_rad", pitch_rad)
-    f = 0.5 * w / math.tan(0.5 * fov)
-    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
-    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    x, y, z = np.full_like(uu, f), cx - uu, cy - vv
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    x, z = x * cp - z * sp, x * sp + z * cp
-    az = heading + yaw + np.arctan2(y, x)
-    el = np.arctan2(z, np.hypot(x, y))
-    return CameraImage(_sample_sphere(eq, az, el), hfov_rad=fov, yaw_in_robot_rad=yaw, pitch_rad=pitch)
 
 
 def photometric(

@@ -29,6 +29,7 @@ import numpy as np
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
+from factorloc.sim.determinism import without_ipp
 from factorloc.sim.textures import atlas_of
 from factorloc.sim.world import Obstacle, World
 
@@ -308,8 +309,9 @@ def _texture_maps(
 
 
 def shade(world: World, hits: Hits) -> np.ndarray:
-    """Sample the packed atlas bilinearly: H×W×3 BGR uint8."""
-    return cv2.remap(atlas_of(world).packed, hits.map_x, hits.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    """Sample the packed atlas bilinearly: H×W×3 BGR uint8 (without IPP: see :mod:`factorloc.sim.determinism`)."""
+    with without_ipp():
+        return cv2.remap(atlas_of(world).packed, hits.map_x, hits.map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def _occluder_world(world: World, occluders: Sequence[Obstacle]) -> World | None:

@@ -70,9 +70,11 @@ class Estimate:
         k×k covariance of ``values`` (m², rad²), world frame. Per-axis estimates
         (the patent's case) have a diagonal one; use :meth:`heading`,
         :meth:`position` or :meth:`pose` to build from sigmas.
-    reliable, reason
-        The estimator's own verdict and a human-readable reason. Without a ``reason``, an estimate with
-        ``checks`` gets the one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
+    reliable
+        The estimator's own verdict.
+    reason
+        A human-readable reason for it. Without a ``reason``, an estimate with ``checks`` gets the
+        one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
     diagnostics
         Free-form figures for people and plots: match count, peak correlation, residual, scale… Nothing in
         the library decides on them: decisions travel as ``checks`` and ``seed``.

@@ -94,6 +94,13 @@ class Panorama(_ImageSize):
         object.__setattr__(self, "fov_v_rad", fov)
         object.__setattr__(self, "azimuth_col0_rad", finite_float("Panorama.azimuth_col0_rad", self.azimuth_col0_rad))
 
+    @classmethod
+    def from_images(cls, images: Sequence[CameraImage], yaws_rad: Sequence[float], **kwargs: Any) -> Panorama:
+        """Stitch pinhole views taken at known yaws: :func:`factorloc.vision.panoramas.panorama_from_images`."""
+        from factorloc.vision.panoramas import panorama_from_images
+
+        return panorama_from_images(images, yaws_rad, **kwargs)
+
     def same_as(self, other: object) -> bool:
         """Whether ``other`` is a panorama with the same pixels, field of view, azimuth origin and seen columns.
 

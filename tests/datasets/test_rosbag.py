@@ -126,3 +126,12 @@ def test_ros2_bag_odometry_scans_and_point_clouds(tmp_path: Path) -> None:
     stamps, clouds = read_point_clouds(bag, "/points")
     np.testing.assert_allclose(stamps, [100.5, 101.5, 102.5])
     np.testing.assert_allclose(clouds[1].points_m, [[1, 2, 3], [4, 5, 7]])  # the NaN point is dropped
+
+
+def test_odometry_track_gaps_brackets_and_path_length() -> None:
+    from factorloc.datasets.rosbag import OdometryTrack
+
+    track = OdometryTrack(np.array([0.0, 1.0, 3.0]), np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0]]))
+    assert track.gap_s(1.2) == pytest.approx(0.2) and track.gap_s(-0.5) == pytest.approx(0.5)
+    assert track.bracket_s(1.0) == 0.0 and track.bracket_s(2.0) == pytest.approx(2.0) and track.bracket_s(3.5) == math.inf
+    assert track.path_length_m(2.0) == pytest.approx(2.0) and np.allclose(track.path_length_m(np.array([0.5, 9.0])), [0.5, 3.0])

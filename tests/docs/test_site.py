@@ -3,7 +3,11 @@
 ``make test`` builds the site (``make docs``) before running the tests. The
 check opens the home page and the first tutorial as a browser would (offline,
 with the flags a closed network needs) and asserts that each page's main
-heading and at least one rendered figure are there. Run alone (``pytest``), it
+heading and at least one rendered figure are there; it then opens every page
+with the network cut (:mod:`cdp`, the DevTools protocol) and asserts that none
+requests anything but its own files or fails a request, that the concepts page
+shows its formulas as rendered maths, and that the API page shows the right
+parameter types and links instead of raw Sphinx roles. Run alone (``pytest``), it
 skips, saying why, when the site has not been built or no Chromium is installed;
 under ``make test`` (which sets ``FACTORLOC_REQUIRE_SITE=1`` after building the
 site and installing Chromium) either absence is a failure, so that the check
@@ -21,16 +25,7 @@ from pathlib import Path
 from typing import NoReturn
 
 import pytest
-
-FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
+from cdp import FLAGS, load_pages
 
 
 def _unavailable(reason: str) -> NoReturn:
@@ -97,3 +92,90 @@ def test_quickstart_tutorial_is_rendered_with_its_output_figures(site: Path, chr
     figures = re.findall(r'<img[^>]*src="data:image/png;base64,([A-Za-z0-9+/=]+)"', dom)
     assert figures, "the executed tutorial shows no figure"
     assert base64.b64decode(figures[0])[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+#: Hosts of content delivery networks and web fonts: none may appear in the built site's pages and styles.
+CDN = re.compile(r"cdn\.jsdelivr\.net|cdnjs\.cloudflare\.com|unpkg\.com|fonts\.googleapis\.com|fonts\.gstatic\.com|polyfill\.io")
+#: Material for MkDocs' script bundle names two URLs it loads only on demand: a ResizeObserver polyfill (for
+#: browsers without one) and mermaid (for pages with a mermaid diagram; this site has none). Neither is requested
+#: by any page here — :func:`test_every_page_loads_offline_without_a_failed_request` checks what pages request.
+BUNDLE_ON_DEMAND = {"https://unpkg.com/resize-observer-polyfill", "https://unpkg.com/mermaid@11/dist/mermaid.min.js"}
+
+
+def _pages(site: Path) -> list[Path]:
+    """Every page; not 404.html, whose links are absolute (a web server serves it at the site's root)."""
+    return sorted(site.rglob("index.html"))
+
+
+def test_the_built_site_references_no_cdn(site: Path) -> None:
+    offenders = []
+    for f in [*site.rglob("*.html"), *site.rglob("*.css"), *site.rglob("*.js")]:
+        text = f.read_text(errors="replace")
+        for m in CDN.finditer(text):
+            if f.suffix == ".js" and f.parent.name == "javascripts":
+                url = re.match(r"https?://[^\"' )]+", text[text.rfind('"', 0, m.start()) + 1 :])
+                if url and url.group(0) in BUNDLE_ON_DEMAND:
+                    continue
+            offenders.append(f"{f.relative_to(site)}: ...{text[max(0, m.start() - 60) : m.end() + 40]}...")
+    assert not offenders, "\n".join(offenders)
+
+
+@pytest.fixture(scope="module")
+def offline(site: Path, chromium: str, tmp_path_factory: pytest.TempPathFactory):
+    """Every page of the site, loaded once with the network cut."""
+    article = "(document.querySelector('article') ? document.querySelector('article').innerText : '')"
+    block_maths = "Array.from(document.querySelectorAll('math[display=block]'))"
+    localize_query_row = (
+        "(() => { const s = document.getElementById('factorloc.localize'); if (!s) return null; "
+        "const d = s.closest('div.doc') || s.parentElement.parentElement; "
+        "const rows = Array.from(d.querySelectorAll('tr')).filter(r => r.querySelector('td code')); "
+        "const row = rows.find(r => r.querySelector('td code').textContent.trim() === 'query'); "
+        "return row ? row.innerText : null; })()"
+    )
+    probes = {
+        "maths": "document.querySelectorAll('math').length",
+        "maths_height": f"Math.min(...{block_maths}.map(m => m.getBoundingClientRect().height), 1e9)",
+        "text": article,
+        "h1": "(document.querySelector('h1') || {}).textContent || ''",
+        "png_figures": "document.querySelectorAll('img[src^=\"data:image/png\"]').length",
+        "links_to_api": "document.querySelectorAll('article a[href*=\"#factorloc.\"]').length",
+        "query_type": localize_query_row,
+    }
+    loads = load_pages(chromium, _pages(site), tmp_path_factory.mktemp("cdp-profile"), probes)
+    return {Path(load.url.removeprefix("file://")).relative_to(site).as_posix(): load for load in loads}
+
+
+def test_every_page_loads_offline_without_a_failed_request(offline) -> None:
+    problems = []
+    for page, load in offline.items():
+        outside = [u for u in load.requested if not u.startswith(("file://", "data:", "about:", "blob:"))]
+        if outside:
+            problems.append(f"{page} requests {outside}")
+        if load.failed:
+            problems.append(f"{page}: failed requests {load.failed}")
+        if load.errors:
+            problems.append(f"{page}: script errors {load.errors}")
+    assert len(offline) >= 13
+    assert not problems, "\n".join(problems)
+
+
+def test_the_concepts_page_shows_rendered_maths_offline(offline) -> None:
+    concepts = offline["concepts/index.html"].probes
+    assert concepts["maths"] >= 4, "the concepts page shows no rendered formula"
+    assert concepts["maths_height"] > 10, "a display formula was not laid out"
+    raw = [d for d in ("\\[", "\\(", "$$") if d in concepts["text"]]
+    assert len(concepts["text"]) > 5000 and not raw, f"raw TeX delimiters {raw} are left in the concepts page"
+
+
+def test_the_api_page_shows_the_right_types_and_links_not_sphinx_roles(offline) -> None:
+    api = offline["api/index.html"].probes
+    assert api["query_type"] is not None and "Query" in api["query_type"] and "Reference" not in api["query_type"]
+    roles = re.findall(r":(?:func|class|meth|mod|data|attr|exc):`[^`]*`", api["text"])
+    assert len(api["text"]) > 100_000 and not roles, f"raw Sphinx roles on the API page: {roles[:5]}"
+    assert api["links_to_api"] > 200
+
+
+def test_a_tutorial_page_loads_offline_with_its_figures(offline) -> None:
+    tutorial = offline["tutorials/05_real_laser_logs/index.html"].probes
+    assert "laser" in tutorial["h1"].lower(), tutorial["h1"]
+    assert tutorial["png_figures"] >= 1, "the executed tutorial shows no figure offline"
