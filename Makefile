@@ -1,6 +1,7 @@
 # The README's commands. Thin wrappers: set up once, then run.
 #   make demo   — set up, then run the main job on the shipped sample scenario
-#   make test   — set up, build the documentation (executing the notebooks), then run the test suite (what CI runs)
+#   make test   — set up, lint (ruff with the complexity rules), build the documentation (executing the notebooks),
+#                 then run the test suite (what CI runs)
 # Environment: `make setup` installs the exact versions of requirements/lock.txt (as constraints);
 #   make lock        — re-resolve the lock from pyproject.toml's ranges (newest compatible releases)
 #   make test-latest — the test suite in a throwaway venv without the lock: a refresh's breakage, before it lands
@@ -70,11 +71,13 @@ docs: setup browser
 docs-serve: setup
 	$(DOCS_ENV) $(BIN)/mkdocs serve -f docs/mkdocs.yml
 
-test: docs
+test: lint docs
 	FACTORLOC_REQUIRE_SITE=1 $(BIN)/python -m pytest -n 2 -q
 
+# ruff with the complexity limits of pyproject.toml (C901, PLR0912, PLR0915), and the formatting
 lint: setup
 	$(BIN)/ruff check factorloc tests benchmarks
+	$(BIN)/ruff format --check factorloc tests benchmarks
 
 bench: setup
 	$(BIN)/python benchmarks/bench_fuse.py

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python benchmarks/bench_odometry_model.py`` (needs ``../shared/
 For each fold the model is fitted on two logs (local relations, path < 5 m) and its tails (share of
 relations beyond 3σ; 0.27 % is the Gaussian's), NEES and median σ are printed on all three, the
 held-out one marked. Then the same figures for the library's default model and the patent's example
-(5 % drift). Prints markdown tables (docs/calibration.md); asserts nothing.
+(5 % drift). Prints markdown tables (docs/calibration/odometry.md); asserts nothing.
 """
 
 from __future__ import annotations

@@ -46,7 +46,7 @@ def main() -> None:
     scen = load_scenario(args.scenario)
     run = run_hierarchy(scen)
     report = evaluate(run)
-    out = report.to_json_dict()
+    out = report.to_json()
     clean = out["by_fault"].get("none", {})
     over = out.get("overlapping", {})
     print(

@@ -113,7 +113,7 @@ def _timed(fn, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
 
 
 def bench_sample(max_queries: int) -> None:
-    from factorloc.datasets.scenario import load_scenario
+    from factorloc.datasets import load_scenario
 
     scenario = load_scenario(SAMPLE)
     ref = scenario.reference

@@ -1,39 +1,130 @@
-"""Input checks shared by the constructors: each raises InputError naming the field."""
+"""The input rules every boundary shares: what a valid number, mapping or sequence is, and how it is said.
+
+Each rule has one home here. The ``*_problem`` functions return what is wrong with a value (``""`` when nothing
+is) so that each boundary frames the words in its own error: the constructors raise
+:class:`~factorloc.errors.InputError` naming the field (:func:`finite_float`, :func:`positive_float`, …), the
+config loader :class:`~factorloc.errors.ConfigError` naming the key (:mod:`factorloc.config`), the scenario
+reader :class:`~factorloc.errors.DatasetError` naming the manifest and the field
+(:mod:`factorloc.datasets.reader`).
+"""
 
 from __future__ import annotations
 
+import difflib
 import math
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
 
 from factorloc.errors import InputError
 
+__all__ = [
+    "bgr_image",
+    "construct",
+    "finite_float",
+    "float_array",
+    "keys_problem",
+    "mapping",
+    "nonnegative_float",
+    "number_problem",
+    "point2",
+    "positive_float",
+    "positive_int",
+    "sequence",
+]
+
+
+def number_problem(value: Any, *, positive: bool = False, nonnegative: bool = False) -> str:
+    """What is wrong with ``value`` as a finite real number (> 0 with ``positive``, ≥ 0 with ``nonnegative``), or ``""``.
+
+    Booleans are not numbers; numpy scalars are.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        return f"must be a real number, got {type(value).__name__} {value!r}"
+    try:
+        out = float(value)
+    except OverflowError:
+        return f"must be finite, got {value!r}"
+    if not math.isfinite(out):
+        return f"must be finite, got {out!r}"
+    if positive and out <= 0.0:
+        return f"must be > 0, got {out!r}"
+    if nonnegative and out < 0.0:
+        return f"must be >= 0, got {out!r}"
+    return ""
+
+
+def keys_problem(data: Mapping[str, Any], known: Collection[str]) -> str:
+    """What is wrong with the keys of ``data`` (a key not in ``known``, with the nearest known one), or ``""``."""
+    unknown = sorted(str(k) for k in data if k not in known)
+    if not unknown:
+        return ""
+    hint = difflib.get_close_matches(unknown[0], sorted(known), n=1)
+    suggestion = f" (did you mean {hint[0]!r}?)" if hint else ""
+    return f"has unknown key(s) {unknown}{suggestion}; known: {sorted(known)}"
+
+
+def _checked(name: str, value: Any, **rule: bool) -> float:
+    problem = number_problem(value, **rule)
+    if problem:
+        raise InputError(f"{name} {problem}")
+    return float(value)
+
 
 def finite_float(name: str, value: Any) -> float:
     """Return ``value`` as a finite float or raise :class:`InputError`."""
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise InputError(f"{name} must be a real number, got {type(value).__name__} {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise InputError(f"{name} must be finite, got {out!r}")
-    return out
+    return _checked(name, value)
 
 
 def positive_float(name: str, value: Any) -> float:
     """Return ``value`` as a finite float > 0 or raise :class:`InputError`."""
-    out = finite_float(name, value)
-    if out <= 0.0:
-        raise InputError(f"{name} must be > 0, got {out!r}")
-    return out
+    return _checked(name, value, positive=True)
 
 
 def nonnegative_float(name: str, value: Any) -> float:
     """Return ``value`` as a finite float >= 0 or raise :class:`InputError`."""
-    out = finite_float(name, value)
-    if out < 0.0:
-        raise InputError(f"{name} must be >= 0, got {out!r}")
-    return out
+    return _checked(name, value, nonnegative=True)
+
+
+def positive_int(name: str, value: Any, minimum: int = 1) -> int:
+    """Return ``value`` as an int ≥ ``minimum`` (booleans are not integers) or raise :class:`InputError`."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < minimum:
+        raise InputError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def mapping(name: str, value: Any, known: Collection[str] | None = None) -> dict[str, Any]:
+    """``value`` as a dict, checked to be a mapping (with only ``known`` keys when given), or raise :class:`InputError`."""
+    if not isinstance(value, Mapping):
+        raise InputError(f"{name} must be a mapping, got {type(value).__name__}")
+    problem = keys_problem(value, known) if known is not None else ""
+    if problem:
+        raise InputError(f"{name} {problem}")
+    return dict(value)
+
+
+def sequence(name: str, value: Any, n: int | None = None) -> list[Any]:
+    """``value`` as a list, checked to be a list, tuple or 1-D array (of ``n`` items when given), or raise :class:`InputError`."""
+    if not isinstance(value, (list, tuple, np.ndarray)) or np.ndim(value) == 0:
+        raise InputError(f"{name} must be a list, got {type(value).__name__}")
+    if n is not None and len(value) != n:
+        raise InputError(f"{name} must be a sequence of {n} numbers, got {value!r}")
+    return list(value)
+
+
+def construct(cls: type, where: str, fields: dict[str, Any]) -> Any:
+    """``cls(**fields)``, an unknown or missing field raised as :class:`InputError` naming ``where``."""
+    try:
+        return cls(**fields)
+    except TypeError as exc:
+        raise InputError(f"{where}: {exc}") from exc
+
+
+def point2(name: str, value: Any) -> tuple[float, float]:
+    """``value`` as a point ``(x, y)`` of two finite floats, or raise :class:`InputError`."""
+    x, y = sequence(name, value, 2)
+    return finite_float(f"{name}[0]", x), finite_float(f"{name}[1]", y)
 
 
 def float_array(name: str, value: Any, shape: tuple[int | None, ...], *, min_rows: int = 1) -> np.ndarray:

@@ -9,7 +9,7 @@ in every :class:`~factorloc.types.Localization`).
 from __future__ import annotations
 
 import dataclasses
-import math
+import types
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -17,35 +17,13 @@ from typing import Any
 
 import yaml
 
+from factorloc._validate import keys_problem, number_problem
 from factorloc.errors import ConfigError
 from factorloc.estimators.compass import CompassConfig
 from factorloc.estimators.correlation import CorrelationConfig
 from factorloc.estimators.icp import IcpConfig
 from factorloc.estimators.odometry import OdometryConfig
-
-
-@dataclass(frozen=True)
-class GatingConfig:
-    """The pipeline's gates, applied after the estimators' own reliability verdicts.
-
-    ``consistency`` enables the Mahalanobis test of each reliable estimate
-    against the fusion of the others; an estimate whose squared distance
-    exceeds the χ² quantile ``consistency_probability`` (for its number of
-    components) is rejected, worst first, until all agree. Between two that
-    disagree equally, the earlier (cheaper, less exact) step is rejected.
-
-    ``seed_audit`` rejects a reliable estimate that a later step's data
-    contradict as a seed (:func:`factorloc.gating.seed_audit`: e.g. a
-    kidnapped robot's odometry, around which the scan fits nowhere).
-    """
-
-    consistency: bool = True
-    consistency_probability: float = 0.999
-    seed_audit: bool = True
-
-    def __post_init__(self) -> None:
-        if not 0.0 < self.consistency_probability < 1.0:
-            raise ConfigError(f"gating.consistency_probability must be in (0, 1), got {self.consistency_probability!r}")
+from factorloc.gating.config import GatingConfig
 
 
 @dataclass(frozen=True)
@@ -115,9 +93,9 @@ def _from_plain(cls: type, data: Any, where: str) -> Any:
         raise ConfigError(f"{where} must be a mapping, got {type(data).__name__} {data!r}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(fields))
-    if unknown:
-        raise ConfigError(f"unknown key(s) {unknown} in {where}; known: {sorted(fields)}")
+    problem = keys_problem(data, fields)
+    if problem:
+        raise ConfigError(f"{where} {problem}")
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
         kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
@@ -130,6 +108,7 @@ def _from_plain(cls: type, data: Any, where: str) -> Any:
 
 
 def _coerce(hint: Any, value: Any, where: str) -> Any:
+    """``value`` as the type ``hint`` of a config field (a dataclass, a tuple, an optional, a scalar)."""
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
         return _from_plain(hint, value, where)
@@ -139,18 +118,25 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
         args = typing.get_args(hint)
         inner = args[0] if args else Any
         return tuple(_coerce(inner, v, f"{where}[{i}]") for i, v in enumerate(value))
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        args = typing.get_args(hint)
-        if value is None and type(None) in args:
-            return None
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _coerce(a, value, where)
-            except ConfigError:
-                continue
-        raise ConfigError(f"{where} has an invalid value {value!r}")
+    if origin in (typing.Union, types.UnionType):
+        return _coerce_union(typing.get_args(hint), value, where)
+    return _coerce_scalar(hint, value, where)
+
+
+def _coerce_union(args: tuple[Any, ...], value: Any, where: str) -> Any:
+    if value is None and type(None) in args:
+        return None
+    for a in args:
+        if a is type(None):
+            continue
+        try:
+            return _coerce(a, value, where)
+        except ConfigError:
+            continue
+    raise ConfigError(f"{where} has an invalid value {value!r}")
+
+
+def _coerce_scalar(hint: Any, value: Any, where: str) -> Any:
     if hint is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{where} must be true or false, got {value!r}")
@@ -160,11 +146,10 @@ def _coerce(hint: Any, value: Any, where: str) -> Any:
             raise ConfigError(f"{where} must be an integer, got {value!r}")
         return value
     if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(float(value)):
-            raise ConfigError(f"{where} must be a finite number, got {value!r}")
+        problem = number_problem(value)
+        if problem:
+            raise ConfigError(f"{where} {problem}")
         return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where} must be a string, got {value!r}")
-        return value
+    if hint is str and not isinstance(value, str):
+        raise ConfigError(f"{where} must be a string, got {value!r}")
     return value

@@ -19,7 +19,7 @@ component (position, heading), among the models whose share of relations beyond 
 does not exceed that probability on *each* log given, it picks the sharpest (smallest
 mean log σ). :func:`odometry_residuals` and :func:`assess_odometry_model` give the
 figures (tail shares, NEES) of a model on held-out data. The leave-one-log-out folds
-on the Intel, ACES and MIT CSAIL logs are in ``docs/calibration.md``.
+on the Intel, ACES and MIT CSAIL logs are in ``docs/calibration/odometry.md``.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ __all__ = [
 #: P(|z| > 3) for a standard normal: the share of a Gaussian beyond 3σ (1 dof).
 GAUSSIAN_3SIGMA_TAIL = math.erfc(3.0 / math.sqrt(2.0))
 #: The 2-dof χ² quantile of probability 1 − :data:`GAUSSIAN_3SIGMA_TAIL` (the 3σ ellipse, 11.83): for 2 dof the χ²
-#: quantile has the closed form −2·ln(1 − p), equal to :func:`factorloc.gating.chi2_threshold` (no scipy import here).
+#: quantile has the closed form −2·ln(1 − p), equal to :func:`factorloc.stats.chi2_quantile` (no scipy import here).
 CHI2_3SIGMA_2DOF = -2.0 * math.log(GAUSSIAN_3SIGMA_TAIL)
 
 
@@ -65,7 +65,7 @@ class OdometryModel:
     relations (path < 5 m) of the Intel Research Lab and ACES logs — raw wheel odometry of
     two old indoor robots; cautious in the bulk, the price of an honest tail on heavy-tailed
     drift. They are a starting point, not your robot: fit yours with :func:`fit_odometry_model`
-    (``docs/calibration.md`` has the leave-one-log-out folds, and how far the patent's 5 %
+    (``docs/calibration/odometry.md`` has the leave-one-log-out folds, and how far the patent's 5 %
     example is from these logs).
 
     Parameters

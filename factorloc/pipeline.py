@@ -14,37 +14,51 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from factorloc.config import Config, GatingConfig
+from factorloc.config import Config
 from factorloc.errors import FactorlocError, InputError
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.estimators.compass import CompassStep
 from factorloc.estimators.correlation import CorrelationStep
-from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
+from factorloc.estimators.icp import IcpStep
 from factorloc.estimators.odometry import OdometryStep
-from factorloc.fusion.base import FusionStrategy
+from factorloc.fusion.base import FusionStrategy, mark_undetermined
 from factorloc.fusion.graph import GraphFusion
 from factorloc.fusion.product import ProductFusion
-from factorloc.gating import consistency_gate, seed_audit, unconstrained_position
+from factorloc.gating import Gated, GatingConfig, StepRun, gate, position_determined
 from factorloc.geometry import Pose2
-from factorloc.types import FULL, Component, Estimate, Localization, Query, Reference, StepReport, StepStatus
+from factorloc.types import FULL, POSITION, Component, Estimate, Localization, Query, Reference
+from factorloc.verdicts import Check
 
 log = logging.getLogger(__name__)
 
 
-def default_steps(config: Config) -> list[Step]:
-    """The patent's hierarchy, cheapest first, built from ``config`` (disabled steps left out)."""
-    steps: list[tuple[bool, Step]] = [
-        (config.odometry.enabled, OdometryStep(config.odometry)),
-        (config.compass.enabled, CompassStep(config.compass)),
-        (config.correlation.enabled, CorrelationStep(config.correlation)),
-        (config.icp.enabled, IcpStep(config.icp)),
-    ]
-    return [step for enabled, step in steps if enabled]
+#: The patent's hierarchy, cheapest first: the field of :class:`~factorloc.Config` that holds each step's
+#: sub-config, and the step class built from it (``StepClass(sub_config)``). A new estimator is one module,
+#: one field of the config and one entry here.
+STEPS: tuple[tuple[str, Callable[[Any], Step]], ...] = (
+    ("odometry", OdometryStep),
+    ("compass", CompassStep),
+    ("correlation", CorrelationStep),
+    ("icp", IcpStep),
+)
+
+
+def default_steps(config: Config, registry: Sequence[tuple[str, Callable[[Any], Step]]] = STEPS) -> list[Step]:
+    """The steps of ``registry`` (default :data:`STEPS`), built from ``config``'s sub-configs, disabled ones left out.
+
+    Every step sub-config has an ``enabled`` field; ``False`` leaves its step out.
+    """
+    steps = []
+    for field_name, make in registry:
+        sub = getattr(config, field_name)
+        if sub.enabled:
+            steps.append(make(sub))
+    return steps
 
 
 def strategy_for(config: Config) -> FusionStrategy:
@@ -102,78 +116,50 @@ class Localizer:
         if not isinstance(query, Query):
             raise InputError(f"query must be a factorloc.Query, got {type(query).__name__}")
         hypotheses = Hypotheses()
-        produced: list[tuple[Step, Estimate | None, str, float, bool]] = []
+        runs: list[StepRun] = []
         for step in self.steps:
             t0 = time.perf_counter()
-            failure = ""
+            est, failure = None, ""
             try:
                 est = step.estimate(self._prepared[step.name], query, hypotheses if seeded else Hypotheses())
             except FactorlocError as exc:
-                est, failure = None, f"{type(exc).__name__}: {exc}"
+                failure = f"{type(exc).__name__}: {exc}"
                 log.warning("step %s failed on query %r: %s", step.name, query.id, failure)
-            dt = time.perf_counter() - t0
-            produced.append((step, est, failure, dt, bool(failure)))
+            runs.append(StepRun(step.name, est, time.perf_counter() - t0, failure))
             if est is not None and est.reliable:
                 hypotheses = hypotheses.plus(est)
-        reports, fused_inputs = _gate(produced, self.config.gating)
-        return _result(fused_inputs, reports, self.strategy, self.config, query)
+        return fuse_gated(gate(runs, self.config.gating), self.strategy, config=self.config, query=query)
 
 
-def _gate(
-    produced: list[tuple[Step, Estimate | None, str, float, bool]], gating: GatingConfig
-) -> tuple[list[StepReport], list[Estimate]]:
-    ran = [est for _, est, _, _, _ in produced if est is not None]
-    contradicted = {id(ran[i]): why for i, why in seed_audit(ran).items()} if gating.seed_audit else {}
-    reliable = [est for est in ran if est.reliable and id(est) not in contradicted]
-    verdicts = consistency_gate(reliable, gating.consistency_probability) if gating.consistency else []
-    verdict_of = {id(v.estimate): v for v in verdicts}
-    reports: list[StepReport] = []
-    fused_inputs: list[Estimate] = []
-    for step, est, failure, dt, failed in produced:
-        if failed:
-            reports.append(StepReport(step.name, StepStatus.FAILED, None, failure, dt))
-        elif est is None:
-            reports.append(StepReport(step.name, StepStatus.SKIPPED, None, "inputs absent", dt))
-        elif not est.reliable:
-            reports.append(StepReport(step.name, StepStatus.UNRELIABLE, est, est.reason or "unreliable", dt))
-        elif id(est) in contradicted:
-            reports.append(StepReport(step.name, StepStatus.INCONSISTENT, est, contradicted[id(est)], dt))
-        else:
-            verdict = verdict_of.get(id(est))
-            part = est if verdict is None else verdict.accepted_estimate()
-            if part is None:
-                reports.append(StepReport(step.name, StepStatus.INCONSISTENT, est, verdict.reason, dt))
-            else:
-                fused_inputs.append(part)
-                if verdict is None or verdict.fully_accepted:
-                    reason = est.reason or verdict_reason(verdict)
-                else:
-                    reason = f"partly fused: {verdict.reason}"
-                reports.append(StepReport(step.name, StepStatus.FUSED, est, reason, dt))
-    return reports, fused_inputs
-
-
-def verdict_reason(verdict: object) -> str:
-    """The consistency verdict's reason, for estimates that gave none of their own."""
-    return getattr(verdict, "reason", "") if verdict is not None else ""
-
-
-def _result(
-    fused_inputs: list[Estimate], reports: list[StepReport], strategy: FusionStrategy, config: Config | None, query: Query | None
+def fuse_gated(
+    gated: Gated,
+    strategy: FusionStrategy,
+    *,
+    gating: GatingConfig | None = None,
+    config: Config | None = None,
+    query: Query | None = None,
 ) -> Localization:
-    if not fused_inputs:
+    """Fuse what the gate accepted (``gated.accepted``) with ``strategy``: the :class:`Localization` of one query.
+
+    Nothing accepted: the pose is the query's odometry (or the origin) with every component undetermined.
+    A fused position that fails :func:`~factorloc.gating.position_determined` (only estimates "unknown" along
+    some direction measured it: one wall, no seed) is reported undetermined whatever its value across the wall.
+    ``gating`` defaults to ``config.gating``; ``config`` is kept in the result.
+    """
+    gating = gating or (config.gating if config is not None else GatingConfig())
+    if not gated.accepted:
         seed = query.odometry.T_world_robot if query is not None and query.odometry is not None else Pose2()
-        return Localization(seed, np.diag([math.inf] * 3), tuple(reports), strategy.name, FULL, config)
-    fused = strategy.fuse(fused_inputs)
+        return Localization(seed, np.diag([math.inf] * 3), gated.reports, strategy.name, FULL, config)
+    fused = strategy.fuse(gated.accepted)
     undetermined, cov = fused.undetermined, np.array(fused.covariance, dtype=np.float64)
-    if Component.X not in undetermined and unconstrained_position(cov, UNCONSTRAINED_SIGMA_M):
-        # only estimates that are "unknown" along some direction measured the position (one wall, no seed):
-        # the position is not determined, whatever its value across the wall
-        undetermined = tuple(c for c in FULL if c in undetermined or c in (Component.X, Component.Y))
-        cov[:2, :] = 0.0
-        cov[:, :2] = 0.0
-        cov[0, 0] = cov[1, 1] = math.inf
-    return Localization(fused.pose, cov, tuple(reports), strategy.name, undetermined, config)
+    checks: tuple[Check, ...] = ()
+    if Component.X not in undetermined:
+        determined = position_determined(cov, gating.undetermined_sigma_m)
+        checks = (determined,)
+        if not determined.passed:
+            undetermined = tuple(c for c in FULL if c in undetermined or c in POSITION)
+            cov = mark_undetermined(cov, POSITION)
+    return Localization(fused.pose, cov, gated.reports, strategy.name, undetermined, config, checks)
 
 
 def localize(
@@ -230,13 +216,5 @@ def fuse(
         if not isinstance(e, Estimate):
             raise InputError(f"estimates[{i}] must be a factorloc.Estimate, got {type(e).__name__}")
     strategy = strategy or GraphFusion()
-    produced = [(_Named(e.step), e, "", 0.0, False) for e in ests]
-    reports, fused_inputs = _gate(produced, gating or GatingConfig())
-    return _result(fused_inputs, reports, strategy, None, None)
-
-
-class _Named:
-    """Stand-in for a step in reports made by :func:`fuse`."""
-
-    def __init__(self, name: str) -> None:
-        self.name = name
+    cfg = gating or GatingConfig()
+    return fuse_gated(gate([StepRun(e.step, e) for e in ests], cfg), strategy, gating=cfg)

@@ -26,10 +26,11 @@ from scipy.stats import chi2
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
+from factorloc.stats import chi2_quantile
 from factorloc.types import StepStatus
 
 if TYPE_CHECKING:  # pragma: no cover
-    from factorloc.evaluation.runner import EvaluationReport
+    from factorloc.evaluation.report import EvaluationReport
     from factorloc.sim.world import World
 
 __all__ = [
@@ -76,7 +77,7 @@ def covariance_ellipse(covariance_xy: np.ndarray, confidence: float = 0.95) -> t
         raise InputError(f"confidence must be in (0, 1), got {confidence!r}")
     vals, vecs = np.linalg.eigh(0.5 * (cov + cov.T))
     vals = np.maximum(vals, 0.0)
-    k = chi2.ppf(confidence, 2)
+    k = chi2_quantile(confidence, 2)
     width, height = 2.0 * math.sqrt(k * vals[1]), 2.0 * math.sqrt(k * vals[0])
     angle = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
     return width, height, angle
@@ -218,7 +219,7 @@ def _auto_ellipse_scale(report: EvaluationReport, world: World | None) -> float:
     if not sig:
         return 1.0
     target = 0.01 * _plan_size(report, world)  # half-width ≈ 1 % of the plan
-    med = float(np.median(sig)) * math.sqrt(chi2.ppf(0.95, 2))
+    med = float(np.median(sig)) * math.sqrt(chi2_quantile(0.95, 2))
     if med <= 0.0 or med >= target:
         return 1.0
     ratio = target / med
@@ -286,11 +287,11 @@ def error_vs_distance_figure(report: EvaluationReport) -> Figure:
 # --------------------------------------------------------------------------
 def plot_availability_on_axes(ax: Axes, report: EvaluationReport) -> Axes:
     """Per step, the fraction of queries it was fused / unreliable / inconsistent / skipped / failed (stacked bars)."""
-    steps = report.to_json_dict()["steps"]
+    steps = report.summary().overall.steps
     names = list(steps)
     left = np.zeros(len(names))
     for status in [s.value for s in StepStatus]:
-        frac = np.array([steps[n]["status_rates"].get(status, 0.0) or 0.0 for n in names])
+        frac = np.array([steps[n].status_rates.get(status, 0.0) for n in names])
         if frac.any():
             ax.barh(names, frac, left=left, color=STATUS_COLORS[status], label=status, edgecolor="white", height=0.6)
             for i, (lft, f) in enumerate(zip(left, frac, strict=True)):
@@ -339,7 +340,7 @@ def plot_nees_on_axes(ax: Axes, report: EvaluationReport, *, max_nees: float = 2
         )
         if over:
             ax.plot([], [], " ", label=f"{over} above {max_nees:g} (in last bin)")
-    ax.axvline(chi2.ppf(0.99, 3), color="#d9534f", ls="--", lw=1.0, label="99 % bound (11.34); χ²(3) median 2.37")
+    ax.axvline(chi2_quantile(0.99, 3), color="#d9534f", ls="--", lw=1.0, label="99 % bound (11.34); χ²(3) median 2.37")
     ax.set_xlim(0.0, max_nees)
     ax.set_xlabel("NEES  εᵀΣ⁻¹ε  (3 dof)")
     ax.set_ylabel("density")

@@ -15,7 +15,7 @@ verdict does not depend on the CPU's instruction set (see :data:`ROUNDING_TOLERA
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -30,6 +30,7 @@ __all__ = [
     "failed",
     "render_check",
     "render_checks",
+    "render_rule",
 ]
 
 #: Absolute tolerance (in the check's own unit) for quantities that are zero in theory in a common geometry:
@@ -80,6 +81,9 @@ class Check:
         See :class:`Unit`.
     note
         Optional words rendered after the comparison (why a rule was waived, what the number means).
+    failure
+        For a flag: the words rendered when it fails (default ``"not <label>"``), e.g. label
+        ``"seed confirmed by icp"``, failure ``"seed contradicted by icp"``.
     """
 
     code: str
@@ -90,6 +94,7 @@ class Check:
     comparison: Comparison = Comparison.FLAG
     unit: Unit = Unit.NONE
     note: str = ""
+    failure: str = ""
 
     def __post_init__(self) -> None:
         if not isinstance(self.code, str) or not self.code:
@@ -133,9 +138,9 @@ class Check:
         return cls(code, label, value <= limit + tolerance, value, limit, Comparison.AT_MOST, unit, note)
 
     @classmethod
-    def flag(cls, code: str, label: str, holds: bool, *, note: str = "") -> Check:
-        """A rule without a number: ``label`` states the condition that must hold."""
-        return cls(code, label, bool(holds), 1.0 if holds else 0.0, 1.0, Comparison.FLAG, Unit.NONE, note)
+    def flag(cls, code: str, label: str, holds: bool, *, note: str = "", failure: str = "") -> Check:
+        """A rule without a number: ``label`` states the condition that must hold, ``failure`` what a failure means."""
+        return cls(code, label, bool(holds), 1.0 if holds else 0.0, 1.0, Comparison.FLAG, Unit.NONE, note, failure)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Check):
@@ -145,8 +150,8 @@ class Check:
             return a == b or (math.isnan(a) and math.isnan(b))
 
         return (
-            (self.code, self.label, self.passed, self.comparison, self.unit, self.note)
-            == (other.code, other.label, other.passed, other.comparison, other.unit, other.note)
+            (self.code, self.label, self.passed, self.comparison, self.unit, self.note, self.failure)
+            == (other.code, other.label, other.passed, other.comparison, other.unit, other.note, other.failure)
             and same(self.value, other.value)
             and same(self.limit, other.limit)
         )
@@ -156,7 +161,7 @@ class Check:
 
     def waived(self, note: str) -> Check:
         """This check marked as passed, with the reason it was waived (the number stays visible)."""
-        return Check(self.code, self.label, True, self.value, self.limit, self.comparison, self.unit, note)
+        return Check(self.code, self.label, True, self.value, self.limit, self.comparison, self.unit, note, self.failure)
 
     def to_dict(self) -> dict[str, object]:
         """A JSON-ready dict (NaN as None)."""
@@ -169,6 +174,7 @@ class Check:
             "comparison": self.comparison.value,
             "unit": self.unit.value,
             "note": self.note,
+            "failure": self.failure,
         }
 
     @classmethod
@@ -187,6 +193,7 @@ class Check:
             Comparison(str(data.get("comparison", "flag"))),
             Unit(str(data.get("unit", ""))),
             str(data.get("note", "")),
+            str(data.get("failure", "")),
         )
 
 
@@ -207,7 +214,7 @@ def _number(value: float, unit: Unit) -> str:
 def render_check(check: Check) -> str:
     """The words of one check: ``"fitness 0.21 < 0.25"``, ``"σθ 6.2° > 5°"``, or its label for a flag."""
     if check.comparison is Comparison.FLAG:
-        text = check.label if check.passed else f"not {check.label}"
+        text = check.label if check.passed else (check.failure or f"not {check.label}")
     else:
         ok = check.passed
         if check.comparison is Comparison.AT_LEAST:
@@ -216,6 +223,41 @@ def render_check(check: Check) -> str:
             op = "≤" if ok else ">"
         text = f"{check.label} {_number(check.value, check.unit)} {op} {_number(check.limit, check.unit)}"
     return f"{text} ({check.note})" if check.note else text
+
+
+def _span(values: Sequence[float], unit: Unit) -> str:
+    finite = [v for v in values if not math.isnan(v)]
+    if not finite:
+        return _number(math.nan, unit)
+    lo, hi = _number(min(finite), unit), _number(max(finite), unit)
+    if lo == hi:
+        return lo
+    suffix = next((u for u in (" m", " %", "°") if lo.endswith(u) and hi.endswith(u)), "")
+    return f"{lo.removesuffix(suffix)}–{hi}"
+
+
+def render_rule(checks: Sequence[Check]) -> str:
+    """One phrase for several outcomes of one rule (same code; e.g. its failures over many queries).
+
+    ``"σθ 20.6°–29.8° > 20.1°"``: the label, the range of the measured values, the range of the limits.
+    A flag gives its label (or failure words); a note is added when every check has the same one.
+    """
+    if not checks:
+        return ""
+    first = checks[0]
+    notes = {c.note for c in checks}
+    note = f" ({first.note})" if len(notes) == 1 and first.note else ""
+    if first.comparison is Comparison.FLAG:
+        text = first.label if first.passed else (first.failure or f"not {first.label}")
+        return text + note
+    ok = all(c.passed for c in checks)
+    if first.comparison is Comparison.AT_LEAST:
+        op = "≥" if ok else "<"
+    else:
+        op = "≤" if ok else ">"
+    values = _span([c.value for c in checks], first.unit)
+    limits = _span([c.limit for c in checks], first.unit)
+    return f"{first.label} {values} {op} {limits}{note}"
 
 
 def failed(checks: Iterable[Check]) -> tuple[Check, ...]:
@@ -265,6 +307,19 @@ class SeedEvidence:
     def seeded(self) -> bool:
         """Whether any earlier estimate seeded the step."""
         return self.position_step is not None or self.heading_step is not None
+
+    @property
+    def source(self) -> str:
+        """What seeded the step, in words: ``"seeded by odometry"``, ``"seeded by odometry (position) and compass
+        (heading)"``, ``"seeded by odometry (heading)"``; ``""`` when nothing did."""
+        pos, head = self.position_step, self.heading_step
+        if pos is None and head is None:
+            return ""
+        if pos == head or head is None:
+            return f"seeded by {pos}" + ("" if pos == head else " (position)")
+        if pos is None:
+            return f"seeded by {head} (heading)"
+        return f"seeded by {pos} (position) and {head} (heading)"
 
     @property
     def contradicted(self) -> bool:

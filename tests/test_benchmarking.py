@@ -25,21 +25,22 @@ def room(make_room_scenario: Callable[[int, int], Scenario]) -> EvaluationSet:
 
 def test_bench_runs_end_to_end_and_reports_every_section(room: EvaluationSet) -> None:
     out = run_bench(room, settings=BenchSettings(repeats=1, fusion_repeats=2, cost_factors=(0.5, 1.0), cost_queries=2))
-    json.dumps(out, allow_nan=False)
-    assert out["queries"] == 3 and out["localize"]["median_ms"] > 0
-    assert out["localize"]["steps"]["compass"]["median_ms"] is None  # skipped everywhere: no images
-    h = out["hierarchy"]
-    assert h["time_ratio"] > 0 and h["seeded"]["queries_with_truth"] == 3
-    assert h["seeded"]["steps_reliable_rate"]["icp"] == 1.0 and h["seeded"]["position_rmse_m"] < 0.02
-    icp = out["icp_vs_open3d"]
-    assert icp["pairs"] == 3 and icp["ours_median_error_m"] < 0.02 and icp["open3d_median_error_m"] < 0.05
-    f = out["fusion"]
-    assert f["queries"] == 3 and f["queries_with_cross_covariance"] == 3  # ICP's covariance couples x, y, θ
-    assert f["max_position_diff_m_cross_covariance"] < 1e-3
-    cc = out["cost_curve"]
+    text = json.dumps(out.to_json(), allow_nan=False)
+    assert json.loads(text)["localize"]["steps"]["compass"]["median_ms"] is None  # NaN as null
+    assert out.queries == 3 and out.localize.median_ms > 0
+    assert math.isnan(out.localize.steps["compass"].median_ms)  # skipped everywhere: no images
+    h = out.hierarchy
+    assert h.time_ratio > 0 and h.seeded.queries_with_truth == 3
+    assert h.seeded.steps_reliable_rate["icp"] == 1.0 and h.seeded.position_rmse_m < 0.02
+    icp = out.icp_vs_open3d
+    assert icp.pairs == 3 and icp.ours_median_error_m < 0.02 and icp.open3d_median_error_m < 0.05
+    f = out.fusion
+    assert f.queries == 3 and f.queries_with_cross_covariance == 3  # ICP's covariance couples x, y, θ
+    assert f.max_position_diff_m_cross_covariance < 1e-3
+    cc = out.cost_curve
     m = len(room.reference_of(room.cases[0]).scan)
-    assert [p["reference_scan_points"] for p in cc["points"]] == [round(m / 2), m]
-    assert math.isfinite(cc["exponent"])
+    assert [p.reference_scan_points for p in cc.points] == [round(m / 2), m]
+    assert math.isfinite(cc.exponent)
 
 
 def test_scaled_set_doubles_scans_and_keeps_their_geometry(room: EvaluationSet) -> None:
@@ -87,19 +88,19 @@ def test_hierarchy_ablation_counts_false_positives_of_the_seeded_steps_only(room
     seeded = run_hierarchy(room, steps=steps)
     blind = run_hierarchy(room, steps=steps, seeded=False)
     h = bench_hierarchy([seeded], [blind])
-    assert h["seeded"]["false_positive_count"] == 0 and h["blind"]["false_positive_count"] == 3
-    assert h["blind"]["steps_false_positive_count"] == {"odometry": 0, "compass": 3}
-    assert h["false_positive_ratio"] == 3.0 and h["false_positive_ratio_is_lower_bound"] is True
-    assert h["time_ratio"] > 0
+    assert h.seeded.false_positive_count == 0 and h.blind.false_positive_count == 3
+    assert h.blind.steps_false_positive_count == {"odometry": 0, "compass": 3}
+    assert h.false_positive_ratio == 3.0 and h.false_positive_ratio_is_lower_bound is True
+    assert h.time_ratio > 0
     # the counts come with what they are counted among, and the fused outcome of each mode
-    assert h["blind"]["steps_reliable_count"] == {"odometry": 3, "compass": 3}
-    assert h["blind"]["steps_false_positive_per_reliable"]["compass"] == 1.0
-    assert h["seeded"]["steps_false_positive_per_reliable"]["compass"] == 0.0
+    assert h.blind.steps_reliable_count == {"odometry": 3, "compass": 3}
+    assert h.blind.steps_false_positive_per_reliable["compass"] == 1.0
+    assert h.seeded.steps_false_positive_per_reliable["compass"] == 0.0
     # blind, the 20°-wrong compass (σ 0.6°) and the odometry's heading (σ 1.7°, 1.1° off) disagree and the
     # consistency gate drops the earlier of the two: every fused heading is 20° off at σ 0.6°; seeded, none is
-    assert h["blind"]["confidently_wrong_count"] == 3 and h["seeded"]["confidently_wrong_count"] == 0
-    assert h["confidently_wrong_ratio"] == 3.0 and h["confidently_wrong_ratio_is_lower_bound"] is True
-    assert h["blind"]["determined_rate"] == h["seeded"]["determined_rate"] == 1.0
+    assert h.blind.confidently_wrong_count == 3 and h.seeded.confidently_wrong_count == 0
+    assert h.confidently_wrong_ratio == 3.0 and h.confidently_wrong_ratio_is_lower_bound is True
+    assert h.blind.determined_rate == h.seeded.determined_rate == 1.0
 
 
 def test_hierarchy_ablation_claims_no_ratio_when_neither_mode_has_a_false_positive(room: EvaluationSet) -> None:
@@ -109,9 +110,9 @@ def test_hierarchy_ablation_claims_no_ratio_when_neither_mode_has_a_false_positi
 
     steps = [OdometryStep()]
     h = bench_hierarchy([run_hierarchy(room, steps=steps)], [run_hierarchy(room, steps=steps, seeded=False)])
-    assert h["seeded"]["false_positive_count"] == h["blind"]["false_positive_count"] == 0
-    assert math.isnan(h["false_positive_ratio"]) and h["false_positive_ratio_is_lower_bound"] is False
-    assert math.isnan(h["confidently_wrong_ratio"]) and h["confidently_wrong_ratio_is_lower_bound"] is False
+    assert h.seeded.false_positive_count == h.blind.false_positive_count == 0
+    assert math.isnan(h.false_positive_ratio) and h.false_positive_ratio_is_lower_bound is False
+    assert math.isnan(h.confidently_wrong_ratio) and h.confidently_wrong_ratio_is_lower_bound is False
 
 
 def test_clopper_pearson_matches_scipys_exact_interval_and_the_closed_forms() -> None:
@@ -181,24 +182,24 @@ def test_hierarchy_ablation_reports_exact_intervals_and_the_sample_a_5x_claim_ne
 
     truth = {c.query.id: c.truth for c in room.cases}
     steps = [OdometryStep(), _SeedHungryStep(truth)]
-    fp = bench_hierarchy([run_hierarchy(room, steps=steps)], [run_hierarchy(room, steps=steps, seeded=False)])["false_positives"]
-    assert fp["headline"] == "sigma3" and fp["queries"] == 3 and fp["target_ratio"] == 5.0
+    fp = bench_hierarchy([run_hierarchy(room, steps=steps)], [run_hierarchy(room, steps=steps, seeded=False)]).false_positives
+    assert fp.headline == "sigma3" and fp.queries == 3 and fp.target_ratio == 5.0
     for definition in ("sigma3", "tolerance"):  # 20° off at σ 0.6°: beyond 3σ and beyond 5°
-        c = fp["steps_after_first"][definition]
-        assert c["seeded"]["count"] == 0 and c["blind"]["count"] == 3
-        assert c["blind"]["rate_ci"][0] == pytest.approx(0.025 ** (1 / 3)) and c["blind"]["rate_ci"][1] == 1.0
-        assert c["ratio"] == math.inf and c["shows_target"] is False
+        c = fp.steps_after_first[definition]
+        assert c.seeded.count == 0 and c.blind.count == 3
+        assert c.blind.rate_ci[0] == pytest.approx(0.025 ** (1 / 3)) and c.blind.rate_ci[1] == 1.0
+        assert c.ratio == math.inf and c.shows_target is False
         # 3 of 3 vs 0 of 3: the one-sided bound of π is 0.05^(1/3), ρ = π / (1 − π)
-        assert c["ratio_lower_bound"] == pytest.approx(0.05 ** (1 / 3) / (1 - 0.05 ** (1 / 3)))
+        assert c.ratio_lower_bound == pytest.approx(0.05 ** (1 / 3) / (1 - 0.05 ** (1 / 3)))
         # at a blind rate of 1 and a seeded rate of 0, 17 queries give the 16.4 blind events 5× needs
-        assert c["queries_needed"] == 17
-        assert fp["fused"][definition]["blind"]["count"] == 3 and fp["fused"][definition]["seeded"]["count"] == 0
-    compass = fp["steps"]["compass"]["sigma3"]
-    assert compass["blind"]["reliable"] == compass["seeded"]["reliable"] == 3
-    assert compass["blind"]["per_reliable"] == 1.0
-    assert compass["seeded"]["per_reliable_ci"][1] == pytest.approx(1 - 0.025 ** (1 / 3))
-    odo = fp["steps"]["odometry"]["sigma3"]
-    assert odo["seeded"]["count"] == odo["blind"]["count"] == 0 and math.isnan(odo["ratio"])
+        assert c.queries_needed == 17
+        assert fp.fused[definition].blind.count == 3 and fp.fused[definition].seeded.count == 0
+    compass = fp.steps["compass"]["sigma3"]
+    assert compass.blind.reliable == compass.seeded.reliable == 3
+    assert compass.blind.per_reliable == 1.0
+    assert compass.seeded.per_reliable_ci[1] == pytest.approx(1 - 0.025 ** (1 / 3))
+    odo = fp.steps["odometry"]["sigma3"]
+    assert odo.seeded.count == odo.blind.count == 0 and math.isnan(odo.ratio)
 
 
 def test_power_to_show_a_ratio_is_the_chance_of_enough_blind_events() -> None:

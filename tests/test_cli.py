@@ -6,6 +6,7 @@ import json
 import math
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from typer.testing import CliRunner
@@ -92,7 +93,7 @@ def test_evaluate_writes_json_with_the_stable_keys_and_the_figures(tmp_path: Pat
     ):
         assert key in out and key in out["by_fault"]["blur"], key
     assert out["queries"] == 4 and out["steps"]["icp"]["reliable_rate"] == 1.0
-    assert out["steps"]["compass"]["gate_reasons"] == {"skipped: inputs absent": 4}
+    assert out["steps"]["compass"]["gate_reasons"] == {"skipped: compass.skipped": 4}
     assert out["position_rmse_m"] < 0.01  # exact scans: ICP recovers the pose; the 5 cm odometry error is gone
     assert sorted(p.name for p in (tmp_path / "figs").iterdir()) == [
         "availability.png",
@@ -136,59 +137,53 @@ def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path:
     }
 
 
+def _bench_report(hierarchy: Any, points: tuple[Any, ...]) -> Any:
+    from factorloc.benchmarking import BenchReport, BenchSettings, CostCurve, FusionBench, IcpVsOpen3d, LocalizeBench
+    from factorloc.benchmarking.results import Machine
+
+    return BenchReport(
+        scenario="s",
+        queries=1,
+        settings=BenchSettings(repeats=1),
+        localize=LocalizeBench(1, 1, 25.5, 30.0, 26.0, {}, {}),
+        hierarchy=hierarchy,
+        icp_vs_open3d=IcpVsOpen3d(0),
+        fusion=FusionBench(0),
+        cost_curve=CostCurve(points, 1.0, {"icp": 1.0}),
+        peak_memory_mb=100.0,
+        wall_seconds=1.0,
+        machine=Machine(2, 2, 0.5, 0.5, 2),
+    )
+
+
+def _mode(median_ms: float, fp: int, wrong: int, wrong_rate: float, determined: float) -> Any:
+    from factorloc.benchmarking import HierarchyMode
+
+    return HierarchyMode(
+        median_ms, math.nan, math.nan, {}, 10, fp, fp / 10, {}, {}, {}, {}, wrong_rate, wrong, determined, 0.01, 0.1
+    )
+
+
+def _fp_comparison(queries: int, after_first: Any = None, fused: Any = None, steps: Any = None) -> Any:
+    from factorloc.benchmarking import FalsePositiveComparison
+
+    return FalsePositiveComparison("sigma3", 0.95, 5.0, 0.1, 5.0, queries, after_first or {}, fused or {}, steps or {})
+
+
 def test_bench_tables_render_a_cost_curve_with_panorama_and_cloud_sizes() -> None:
     from rich.console import Console
 
-    from factorloc.cli import bench_tables
+    from factorloc.benchmarking import HierarchyBench
+    from factorloc.benchmarking.results import CostPoint
+    from factorloc.cli_bench import bench_tables
 
-    point = {
-        "factor": 1.0,
-        "panorama_width_px": 2048,
-        "reference_cloud_points": 10240,
-        "reference_scan_points": 360,
-        "query_cloud_points_median": 4800.0,
-        "median_ms": 25.5,
-        "steps_median_ms": {"icp": 3.25},
-    }
-    out = {
-        "scenario": "s",
-        "queries": 1,
-        "localize": {"repeats": 1, "median_ms": 25.5, "p95_ms": 30.0, "mean_ms": 26.0, "steps": {}},
-        "hierarchy": {
-            "seeded": {
-                "median_ms": 10.0,
-                "false_positive_count": 0,
-                "steps_false_positive_count": {},
-                "steps_reliable_rate": {},
-                "confidently_wrong_rate": 0.0,
-                "confidently_wrong_count": 0,
-                "determined_rate": 0.9,
-            },
-            "blind": {
-                "median_ms": 40.0,
-                "false_positive_count": 3,
-                "steps_false_positive_count": {},
-                "steps_reliable_rate": {},
-                "confidently_wrong_rate": 0.1,
-                "confidently_wrong_count": 2,
-                "determined_rate": 0.8,
-            },
-            "time_ratio": 4.0,
-            "false_positive_ratio": 3.0,
-            "false_positive_ratio_is_lower_bound": True,
-            "confidently_wrong_ratio": 2.0,
-            "confidently_wrong_ratio_is_lower_bound": True,
-        },
-        "icp_vs_open3d": {"pairs": 0},
-        "fusion": {"queries": 0},
-        "cost_curve": {
-            "points": [point, {**point, "factor": 2.0, "panorama_width_px": 4096, "median_ms": 51.0}],
-            "exponent": 1.0,
-            "steps_exponent": {"icp": 1.0},
-        },
-    }
+    point = CostPoint(1.0, 2048, 10240, 360, 4800.0, 25.5, {"icp": 3.25})
+    doubled = CostPoint(2.0, 4096, 10240, 360, 4800.0, 51.0, {"icp": 3.25})
+    hierarchy = HierarchyBench(
+        _mode(10.0, 0, 0, 0.0, 0.9), _mode(40.0, 3, 2, 0.1, 0.8), 4.0, 3.0, True, 2.0, True, _fp_comparison(0)
+    )
     console = Console(width=100, record=True)
-    for t in bench_tables(out):
+    for t in bench_tables(_bench_report(hierarchy, (point, doubled))):
         console.print(t)
     text = console.export_text()
     assert "4096" in text and "10240" in text and "≥ 3.0×" in text and "4.0×" in text and "≥ 2.0×" in text
@@ -229,28 +224,15 @@ def test_localize_unknown_query_or_scenario_fails_cleanly(repo_root: Path, tmp_p
 def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sample_needed() -> None:
     from rich.console import Console
 
-    from factorloc.benchmarking import _json_safe, compare_counts
-    from factorloc.cli import hierarchy_table
+    from factorloc.benchmarking import HierarchyBench, compare_counts
+    from factorloc.cli_bench import hierarchy_table
 
     none, two = compare_counts(0, 0, 300), compare_counts(0, 2, 300)
-    mode = {"median_ms": 25.0, "determined_rate": 0.97}
-    h = {
-        "seeded": mode,
-        "blind": {**mode, "median_ms": 158.0},
-        "time_ratio": 6.3,
-        "false_positives": {
-            "confidence": 0.95,
-            "target_ratio": 5.0,
-            "tolerance_m": 0.1,
-            "tolerance_deg": 5.0,
-            "queries": 300,
-            "steps_after_first": {"sigma3": none, "tolerance": none},
-            "fused": {"sigma3": two, "tolerance": two},
-            "steps": {"odometry": {"sigma3": compare_counts(6, 6, 300, seeded_reliable=250, blind_reliable=250)}},
-        },
-    }
+    odometry = {"odometry": {"sigma3": compare_counts(6, 6, 300, seeded_reliable=250, blind_reliable=250)}}
+    fp = _fp_comparison(300, {"sigma3": none, "tolerance": none}, {"sigma3": two, "tolerance": two}, odometry)
+    h = HierarchyBench(_mode(25.0, 0, 0, 0.0, 0.97), _mode(158.0, 0, 0, 0.0, 0.97), 6.3, math.nan, False, math.nan, False, fp)
     console = Console(width=160, record=True)
-    console.print(hierarchy_table(_json_safe(h)))
+    console.print(hierarchy_table(h))
     text = console.export_text()
     # 2 of 300 blind, 0 seeded: the rates' exact intervals, an unbounded ratio whose one-sided bound is 0.29×,
     # and the 2465 queries at which 0.67 % blind vs 0 seeded would show 5×
@@ -258,3 +240,37 @@ def test_bench_hierarchy_table_shows_exact_intervals_the_ratio_bound_and_the_sam
     assert "steps after odometry: false + (> 3σ)" in text and "steps: no blind false +" in text
     assert "fused ≈ 2465 (3049 for 80 %)" in text and "6.3×" in text
     assert "6 / 250" in text and "1.0× (≥ 0.33×)" in text
+
+
+def test_library_errors_are_one_line_on_stderr_with_exit_status_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps([{"step": "a", "components": ["x"], "values": [1.0], "sigmas": [1.0]}]))
+    result = runner.invoke(app, ["fuse", str(bad)])
+    assert result.exit_code == 2 and result.stdout == ""
+    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+    assert result.exception is None or isinstance(result.exception, SystemExit)
+
+
+def test_simulate_into_an_existing_scenario_fails_before_rendering_and_names_the_flag(
+    tmp_path: Path, room_dir: Callable[[int], Path], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import factorloc.sim
+
+    scen = room_dir(1)
+
+    def no_rendering(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("rendered before checking the target directory")
+
+    monkeypatch.setattr(factorloc.sim, "generate_scenario", no_rendering)
+    result = runner.invoke(app, ["simulate", str(scen), "--queries", "1"])
+    assert result.exit_code == 2 and "use --overwrite to replace it" in result.stderr and "overwrite=True" not in result.stderr
+
+
+def test_steps_without_their_inputs_are_shown_as_absent(tmp_path: Path, room_dir: Callable[[int], Path]) -> None:
+    room = room_dir(2)
+    result = runner.invoke(app, ["evaluate", str(room)], terminal_width=160)
+    assert result.exit_code == 0, result.output
+    compass = next(line for line in result.output.splitlines() if line.strip().startswith("compass"))
+    assert "absent" in compass and "%" not in compass  # not "0 % reliable": the scan-only room has no camera
+    localized = runner.invoke(app, ["localize", str(room), "q0"], terminal_width=200)
+    assert any("compass" in line and "absent" in line for line in localized.output.splitlines())

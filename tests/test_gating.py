@@ -5,36 +5,46 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
-from factorloc import Component, Estimate, Pose2
+from factorloc import Component, Estimate, Pose2, StepStatus
 from factorloc.gating import (
-    chi2_threshold,
+    GatingConfig,
+    StepRun,
     consistency_gate,
-    mahalanobis_sq,
+    gate,
+    position_determined,
     seed_audit,
-    sigma_gate,
-    unconstrained_position,
+    sigma_checks,
 )
-from factorloc.verdicts import Check, SeedEvidence, Unit
+from factorloc.stats import chi2_quantile
+from factorloc.verdicts import Check, SeedEvidence, Unit, render_check
 
 
-def test_sigma_gate_uses_the_long_axis_of_the_position_covariance() -> None:
+def test_sigma_checks_use_the_long_axis_of_the_position_covariance() -> None:
     corridor = Estimate.position("icp", 0.0, 0.0, covariance=np.diag([0.01**2, 0.30**2]))
-    ok, reason = sigma_gate(corridor, max_sigma_position_m=0.06)
-    assert not ok and "0.3 m > 0.06 m" in reason
-    ok, _ = sigma_gate(Estimate.heading("compass", 0.0, math.radians(0.5)), max_sigma_heading_rad=math.radians(1.0))
-    assert ok
+    (check,) = sigma_checks(corridor, max_sigma_position_m=0.06)
+    assert check.code == "icp.sigma_position" and not check.passed and check.value == pytest.approx(0.3)
+    assert render_check(check) == "σ position 0.3 m > 0.06 m"
+    rotated = Estimate.position("icp", 0.0, 0.0, covariance=np.array([[0.0451, 0.0449], [0.0449, 0.0451]]))
+    assert sigma_checks(rotated, max_sigma_position_m=0.06)[0].value == pytest.approx(0.3)  # along the diagonal
+    (ok,) = sigma_checks(Estimate.heading("compass", 0.0, math.radians(0.5)), max_sigma_heading_rad=math.radians(1.0))
+    assert ok.passed and ok.code == "compass.sigma_heading"
+    assert sigma_checks(Estimate.heading("compass", 0.0, 0.5), max_sigma_position_m=0.06) == ()  # measures no position
 
 
-def test_mahalanobis_of_one_heading_against_another() -> None:
+def test_consistency_of_one_heading_against_another() -> None:
     a = Estimate.heading("compass", math.radians(10.0), math.radians(1.0))
     b = Estimate.heading("correlation", math.radians(13.0), math.radians(1.0))
-    # d² = 3² / (1² + 1²) = 4.5 in degrees
-    assert math.isclose(mahalanobis_sq(a, [b]), 4.5, rel_tol=1e-9)
+    # d² = 3² / (1² + 1²) = 4.5 in degrees, the same for both
+    verdicts = consistency_gate([a, b])
+    assert [v.mahalanobis_sq["heading"] for v in verdicts] == pytest.approx([4.5, 4.5], rel=1e-9)
+    (check,) = verdicts[0].checks
+    assert check.code == "gate.consistency.heading" and check.passed and check.limit == chi2_quantile(0.999, 1)
     # across the ±π seam too
     c = Estimate.heading("x", math.radians(179.0), math.radians(1.0))
     d = Estimate.heading("y", math.radians(-178.0), math.radians(1.0))
-    assert math.isclose(mahalanobis_sq(c, [d]), 4.5, rel_tol=1e-9)
+    assert consistency_gate([c, d])[0].mahalanobis_sq["heading"] == pytest.approx(4.5, rel=1e-9)
 
 
 def test_kidnapped_odometry_loses_its_heading_with_its_position() -> None:
@@ -42,9 +52,14 @@ def test_kidnapped_odometry_loses_its_heading_with_its_position() -> None:
     compass = Estimate.heading("compass", math.radians(12.0), math.radians(1.0))
     icp = Estimate.position("icp", 1.03, 0.48, 0.02, 0.02)
     verdicts = consistency_gate([odo, compass, icp], probability=0.999)
-    assert verdicts[0].accepted == () and "position inconsistent" in verdicts[0].reason
-    assert "heading dropped with its position" in verdicts[0].reason
-    assert verdicts[0].mahalanobis_sq["position"] > chi2_threshold(0.999, 2)
+    assert verdicts[0].accepted == ()
+    assert [(c.code, c.passed) for c in verdicts[0].checks] == [
+        ("gate.consistency.position", False),
+        ("gate.consistency.whole_pose", False),
+    ]
+    assert verdicts[0].reason.startswith("position d² against the other steps ")
+    assert "heading dropped with its position (one measurement of the whole pose)" in verdicts[0].reason
+    assert verdicts[0].mahalanobis_sq["position"] > chi2_quantile(0.999, 2)
     assert verdicts[1].fully_accepted and verdicts[2].fully_accepted
     assert verdicts[0].accepted_estimate() is None
     # tested per axis (the patent's view) the odometry keeps its consistent heading
@@ -121,10 +136,11 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
     violated = Check.at_most("icp.seed.free_space", "share in seen-free space", 0.31, 0.12, Unit.FRACTION)
     evidence = SeedEvidence("odometry", "odometry", checks=(violated,))
     contradicted = seed_audit([odo, compass, _icp_misfit(1.3, 1.9, misfit=evidence)])
-    assert contradicted == {0: "seed contradicted by icp: share in seen-free space 31 % > 12 %"}
+    assert list(contradicted) == [0] and contradicted[0].code == "gate.seed_audit" and not contradicted[0].passed
+    assert render_check(contradicted[0]) == "seed contradicted by icp (share in seen-free space 31 % > 12 %)"
     # the step's own evidence is used as given
     told = Estimate.heading("icp", 0.0, 0.1, reliable=False, seed=_misfit("a fit near the seed"))
-    assert seed_audit([odo, told]) == {0: "seed contradicted by icp: not a fit near the seed"}
+    assert render_check(seed_audit([odo, told])[0]) == "seed contradicted by icp (not a fit near the seed)"
     # a step that reports passed seed checks has checked its seed: its other figures are not second-guessed
     passed = SeedEvidence("odometry", "odometry", checks=(Check.flag("icp.seed.fits_near", "fits near", True),))
     checked = Estimate.pose(
@@ -134,7 +150,7 @@ def test_seed_audit_rejects_the_position_seed_that_the_later_scan_contradicts() 
     assert seed_audit([odo, checked]) == {}
     # a reliable heading-only result (a wall fixes the heading, not the position) may still refute the position seed
     wall = Estimate.heading("icp", 0.3, 0.003, seed=_misfit("18 % of the scan outside seen-free space"))
-    assert seed_audit([odo, wall]) == {0: "seed contradicted by icp: not 18 % of the scan outside seen-free space"}
+    assert seed_audit([odo, wall])[0].note == "not 18 % of the scan outside seen-free space"
 
 
 def test_seed_audit_leaves_degenerate_blind_and_confirmed_seeds_alone() -> None:
@@ -172,15 +188,17 @@ def test_the_consistency_gate_tests_a_wall_estimate_only_across_the_wall() -> No
     assert verdicts[0].mahalanobis_sq["position"] < 0.01
     off_across = Estimate.pose("odometry", Pose2(1.0 + 0.1, 0.0 - 0.1, 0.5), 0.03, 0.03, 0.05)  # 14 cm across: 4.7σ
     verdicts = consistency_gate([off_across, icp])
-    assert verdicts[0].mahalanobis_sq["position"] > chi2_threshold(0.999, 2)
+    assert verdicts[0].mahalanobis_sq["position"] > chi2_quantile(0.999, 2)
     assert verdicts[0].accepted == ()  # the earlier step loses its position on the tie, and its heading with it
     assert verdicts[1].fully_accepted
 
 
-def test_unconstrained_position_flags_only_a_direction_nobody_measured() -> None:
-    assert unconstrained_position(_along_a_diagonal_wall(1.0, 0.0).covariance, 30.0)
-    assert not unconstrained_position(np.diag([0.3**2, 0.3**2, 0.01]), 30.0)
-    assert unconstrained_position(np.diag([np.inf, np.inf, 0.01]), 30.0)
+def test_position_determined_fails_only_for_a_direction_nobody_measured() -> None:
+    limit = GatingConfig().undetermined_sigma_m
+    along = position_determined(_along_a_diagonal_wall(1.0, 0.0).covariance, limit)
+    assert not along.passed and along.code == "gate.undetermined.position" and along.value == pytest.approx(30.0)
+    assert position_determined(np.diag([0.3**2, 0.3**2, 0.01]), limit).passed
+    assert not position_determined(np.diag([np.inf, np.inf, 0.01]), limit).passed
 
 
 def test_seed_audit_drops_the_headings_searched_around_a_contradicted_seed() -> None:
@@ -194,8 +212,43 @@ def test_seed_audit_drops_the_headings_searched_around_a_contradicted_seed() -> 
     ests = [odo, compass, correlation, _icp_misfit(1.57, 3.95, misfit=violated)]
     contradicted = seed_audit(ests)
     assert set(contradicted) == {0, 2}  # the unreliable compass is not fused anyway
-    assert contradicted[2] == f"searched around the odometry seed, contradicted by icp: {violated.reason}"
+    assert contradicted[2].code == "gate.seed_audit.windowed" and contradicted[2].note == violated.reason
+    assert render_check(contradicted[2]).startswith("searched around the odometry seed, contradicted by icp (")
     assert set(seed_audit(ests, drop_seeded=False)) == {0}
     # a heading found without a seed (the whole panorama searched) stands on its own
     blind = Estimate.heading("correlation", -0.37, 0.07, seed=SeedEvidence())
     assert set(seed_audit([odo, compass, blind, ests[3]])) == {0}
+
+
+def test_the_gate_reports_every_step_with_the_checks_that_decided_it() -> None:
+    odo = Estimate.pose("odometry", Pose2(3.0, 0.5, 0.2), 0.05, 0.05, 0.05)
+    bad = Check.at_least("compass.inliers", "inlier pairs", 3, 8, Unit.COUNT)
+    compass = Estimate.heading("compass", 0.2, 0.1, reliable=False, checks=(bad,))
+    icp = Estimate.position("icp", 1.03, 0.48, 0.02, 0.02)
+    correlation = Estimate.heading("correlation", 0.21, 0.02)
+    failure = "InputError: all-black image"
+    runs = [StepRun("odometry", odo, 0.001), StepRun("compass", compass), StepRun("correlation", correlation),
+            StepRun("icp", icp), StepRun("panorama", None), StepRun("extra", None, 0.0, failure)]  # fmt: skip
+    gated = gate(runs, GatingConfig())
+    status = {r.name: r.status.value for r in gated.reports}
+    assert status == {"odometry": "inconsistent", "compass": "unreliable", "correlation": "fused", "icp": "fused",
+                      "panorama": "skipped", "extra": "failed"}  # fmt: skip
+    assert gated.accepted == (correlation, icp)
+    codes = {r.name: r.rule_codes for r in gated.reports}
+    assert codes["odometry"] == ("gate.consistency.position", "gate.consistency.whole_pose")
+    assert codes["compass"] == ("compass.inliers",) and gated.reports[1].reason == "inlier pairs 3 < 8"
+    assert codes["panorama"] == ("panorama.skipped",) and codes["extra"] == ("extra.failed",)
+    assert codes["icp"] == () and gated.reports[3].reason.startswith("consistency not tested")
+    assert gated.reports[5].reason == "InputError: all-black image" and gated.reports[0].seconds == 0.001
+    # the knobs: per axis, the odometry keeps its heading (partly fused); without the consistency gate it is fused whole
+    per_axis = gate(runs, GatingConfig(full_pose_whole=False))
+    assert per_axis.reports[0].status is StepStatus.FUSED and per_axis.reports[0].reason.startswith("partly fused: position d²")
+    assert len(gate(runs, GatingConfig(consistency=False)).accepted) == 3
+
+
+def test_every_gating_knob_is_a_config_field() -> None:
+    from factorloc import Config
+
+    cfg = Config.from_dict({"gating": {"full_pose_whole": False, "drop_seeded": False, "undetermined_sigma_m": 5.0}})
+    assert (cfg.gating.full_pose_whole, cfg.gating.drop_seeded, cfg.gating.undetermined_sigma_m) == (False, False, 5.0)
+    assert Config.from_dict(cfg.to_dict()) == cfg

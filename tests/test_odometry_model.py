@@ -53,9 +53,9 @@ def _synthetic(seed: int, n: int = 4000, k: float = 0.1, floor: float = 0.02, kh
 
 
 def test_the_3sigma_quantiles_are_the_gates() -> None:
-    from factorloc.gating import chi2_threshold
+    from factorloc.stats import chi2_quantile
 
-    assert CHI2_3SIGMA_2DOF == pytest.approx(chi2_threshold(1.0 - GAUSSIAN_3SIGMA_TAIL, 2), rel=1e-12)
+    assert CHI2_3SIGMA_2DOF == pytest.approx(chi2_quantile(1.0 - GAUSSIAN_3SIGMA_TAIL, 2), rel=1e-12)
     assert GAUSSIAN_3SIGMA_TAIL == pytest.approx(1.0 - 0.9973002039367398, rel=1e-9)
 
 
@@ -110,7 +110,7 @@ def test_on_the_real_logs_each_fold_keeps_its_training_tails_and_the_patent_exam
         for n in train:
             a = assess_odometry_model(model, res[n])
             assert a.tail_position <= GAUSSIAN_3SIGMA_TAIL and a.tail_heading <= GAUSSIAN_3SIGMA_TAIL
-        # held out, the position tail stays within 4× the Gaussian's (docs/calibration.md has the table)
+        # held out, the position tail stays within 4× the Gaussian's (docs/calibration/odometry.md has the table)
         assert assess_odometry_model(model, res[held]).tail_position < 4 * GAUSSIAN_3SIGMA_TAIL
     for n in names:  # the 5 % example: a quarter of the positions beyond 3σ
         assert assess_odometry_model(patent, res[n]).tail_position > 0.2

@@ -106,7 +106,8 @@ def test_unreliable_odometry_by_sigma_threshold() -> None:
     odo = Odometry(Pose2(), 1.0, 1.0, 0.1)
     loc = localize(REF, Query(odometry=odo), Config.from_dict({"odometry": {"max_sigma_position_m": 0.06}}))
     assert loc.step("odometry").status is StepStatus.UNRELIABLE
-    assert "σ position 1.000 m > 0.060 m" in loc.step("odometry").reason
+    assert loc.step("odometry").reason == "σ position 1 m > 0.06 m"
+    assert loc.step("odometry").rule_codes == ("odometry.sigma_position",)
 
 
 def test_strategy_object_overrides_config_and_bad_arguments_raise() -> None:

@@ -224,7 +224,7 @@ def test_certainty_of_an_elongated_gaussian_and_of_undetermined_components() -> 
 
 def test_positive_definite_check_agrees_with_eigenvalues_on_random_and_near_singular_matrices():
     """The LDLᵀ pivot test (plain Python, k ≤ 3) accepts exactly the matrices whose eigenvalues are all > 0."""
-    from factorloc.types import _cholesky_pivots
+    from factorloc.types.estimate import _cholesky_pivots
 
     rng = np.random.default_rng(4)
     checked = 0

@@ -48,3 +48,25 @@ def test_checks_and_seed_evidence_round_trip_through_json() -> None:
     back = Estimate.from_dict(est.to_dict())
     assert back == est and back.seed.contradicted and back.seed.reason == "share 30 % > 12 %"
     assert SeedEvidence().seeded is False and SeedEvidence(heading_step="compass").seeded
+
+
+def test_render_rule_gives_the_range_of_one_rule_over_many_outcomes() -> None:
+    from factorloc.verdicts import render_rule
+
+    sigmas = [Check.at_most("odometry.sigma_heading", "σθ", math.radians(d), math.radians(20.0), Unit.RADIAN) for d in (26, 21)]
+    assert render_rule(sigmas) == "σθ 21–26° > 20°"
+    fits = [Check.at_least("icp.fitness", "fitness", f, 0.25) for f in (0.2, 0.2)]
+    assert render_rule(fits) == "fitness 0.2 < 0.25"
+    seeds = [
+        Check.flag("gate.seed_audit", "seed confirmed by icp", False, note=n, failure="seed contradicted by icp") for n in "ab"
+    ]
+    assert render_rule(seeds) == "seed contradicted by icp"  # the notes differ: left out
+    assert render_rule(seeds[:1]) == "seed contradicted by icp (a)"
+
+
+def test_seed_source_names_each_seeding_step_once() -> None:
+    assert SeedEvidence("odometry", "odometry").source == "seeded by odometry"
+    assert SeedEvidence("odometry", "compass").source == "seeded by odometry (position) and compass (heading)"
+    assert SeedEvidence("odometry", None).source == "seeded by odometry (position)"
+    assert SeedEvidence(None, "compass").source == "seeded by compass (heading)"
+    assert SeedEvidence().source == ""

@@ -14,11 +14,25 @@ scores them exactly like the per-query fusion.
 trajectory (the simulator's own scenarios are independent queries).
 """
 
-from factorloc.baselines.common import MotionModel, OdometryLink
+from typing import TYPE_CHECKING, Any
+
 from factorloc.baselines.ekf import ExtendedKalmanFilter
 from factorloc.baselines.markov import MarkovGridLocalization
 from factorloc.baselines.mcl import MonteCarloLocalization
-from factorloc.baselines.trajectory import generate_trajectory_scenario
+from factorloc.fusion.sequential import MotionModel, OdometryLink
+
+if TYPE_CHECKING:  # pragma: no cover
+    from factorloc.baselines.trajectory import generate_trajectory_scenario
+
+
+def __getattr__(name: str) -> Any:
+    """``generate_trajectory_scenario`` is imported on first use: it renders with the simulator."""
+    if name == "generate_trajectory_scenario":
+        from factorloc.baselines.trajectory import generate_trajectory_scenario
+
+        return generate_trajectory_scenario
+    raise AttributeError(f"module 'factorloc.baselines' has no attribute {name!r}")
+
 
 __all__ = [
     "ExtendedKalmanFilter",

@@ -5,7 +5,7 @@ State: the pose (x, y, θ) in the world frame with its 3×3 covariance P.
 * **Predict** with the odometry motion Δ between consecutive queries
   (Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 3.3 / 7.2):
   x ← x ∘ Δ,  P ← F P Fᵀ + G Q Gᵀ, with F = ∂(x∘Δ)/∂x, G = ∂(x∘Δ)/∂Δ and Q the
-  :class:`~factorloc.baselines.common.MotionModel` covariance of Δ.
+  :class:`~factorloc.fusion.sequential.MotionModel` covariance of Δ.
 * **Correct** with every reliable estimate of the query, one after the other
   (they are independent): z = H x + v, H selecting the measured components,
   innovation y = z − H x (θ wrapped), S = H P Hᵀ + R, K = P Hᵀ S⁻¹,
@@ -16,7 +16,7 @@ State: the pose (x, y, θ) in the world frame with its 3×3 covariance P.
   ties) and the query's estimates. When the gate rejects the prediction's
   position or heading (the robot was kidnapped, or the odometry run was
   wrong), that block of the belief is re-initialized from the measurements.
-* A new odometry run (see :class:`~factorloc.baselines.common.OdometryLink`)
+* A new odometry run (see :class:`~factorloc.fusion.sequential.OdometryLink`)
   starts from the odometry step's absolute estimate, as the per-query fusion does.
 
 The filter is written plainly in numpy (filterpy's ``ExtendedKalmanFilter``
@@ -31,7 +31,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from factorloc.baselines.common import (
+from factorloc.errors import InputError
+from factorloc.fusion.base import Fused, indices
+from factorloc.fusion.sequential import (
     ODOMETRY_STEP,
     MotionModel,
     OdometryLink,
@@ -40,9 +42,7 @@ from factorloc.baselines.common import (
     prior_estimate,
     reliable_estimates,
 )
-from factorloc.config import GatingConfig
-from factorloc.errors import InputError
-from factorloc.fusion.base import Fused, indices
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Component, Estimate, Query, StepReport
 
@@ -63,7 +63,7 @@ class ExtendedKalmanFilter:
         The consistency gate (default: the library's, χ² 0.999); ``GatingConfig(consistency=False)``
         fuses every reliable estimate.
     continuous
-        Whether consecutive queries share one odometry run (see :class:`~factorloc.baselines.common.OdometryLink`).
+        Whether consecutive queries share one odometry run (see :class:`~factorloc.fusion.sequential.OdometryLink`).
     """
 
     name = "ekf"

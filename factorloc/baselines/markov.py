@@ -9,7 +9,7 @@ discrete Bayes filter (*Probabilistic Robotics*, Table 4.1):
   (robot frame) moves every heading slice by its own world-frame translation
   R(θ)·Δxy (a sub-cell shift with linear interpolation) and the slices by Δθ
   (a shift along the circular θ axis); the motion noise is a Gaussian blur
-  with the :class:`~factorloc.baselines.common.MotionModel` σ. Mass that
+  with the :class:`~factorloc.fusion.sequential.MotionModel` σ. Mass that
   leaves the grid is lost (the grid is bounded). A share ``uniform_mix`` of
   the belief is spread uniformly, so that a kidnapped robot can be found again.
 * **Correct**: Bel(s) ∝ Bel⁻(s) · Π_i p(z_i | s), every reliable estimate's
@@ -33,12 +33,13 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import ndimage
 
-from factorloc.baselines.common import ODOMETRY_STEP, MotionModel, OdometryLink, gated, log_likelihood, reliable_estimates
-from factorloc.config import GatingConfig
+from factorloc.baselines.common import log_likelihood
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
+from factorloc.fusion.sequential import ODOMETRY_STEP, MotionModel, OdometryLink, gated, reliable_estimates
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2
-from factorloc.types import Component, Estimate, Query, StepReport
+from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 
 
 class MarkovGridLocalization:
@@ -158,7 +159,7 @@ class MarkovGridLocalization:
         quant = np.array([self.resolution_m**2, self.resolution_m**2, self.dtheta**2]) / 12.0
         for e in estimates:
             # the likelihood of a cell, not of its centre: the estimate's covariance plus the cell's extent
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in e.components]
+            idx = component_indices(e.components)
             cell = Estimate(e.step, e.components, e.values, np.asarray(e.covariance) + np.diag(quant[idx]))
             area = (self.bounds_xy[2] - self.bounds_xy[0]) * (self.bounds_xy[3] - self.bounds_xy[1])
             log_b += log_likelihood(cell, self._centres, self.outlier_probability, area).reshape(self.belief.shape)

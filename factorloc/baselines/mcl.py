@@ -5,7 +5,7 @@ The belief is a set of N weighted particles (x, y, θ) in the world frame.
 
 * **Predict** (sample the odometry motion model, *Probabilistic Robotics*
   Table 5.6 in the robot frame): each particle moves by the odometry motion Δ
-  perturbed with its own draw of the :class:`~factorloc.baselines.common.MotionModel` noise.
+  perturbed with its own draw of the :class:`~factorloc.fusion.sequential.MotionModel` noise.
 * **Correct**: weights are multiplied by the likelihood of every reliable
   estimate of the query (gated as in the hierarchy), with the robust sensor
   model (Gaussian with a uniform outlier floor,
@@ -44,20 +44,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from factorloc.baselines.common import (
-    ODOMETRY_STEP,
-    MotionModel,
-    OdometryLink,
-    gated,
-    log_likelihood,
-    reliable_estimates,
-)
-from factorloc.config import GatingConfig
+from factorloc.baselines.common import log_likelihood
 from factorloc.errors import InputError
 from factorloc.fusion.base import Fused
 from factorloc.fusion.product import ProductFusion
+from factorloc.fusion.sequential import ODOMETRY_STEP, MotionModel, OdometryLink, gated, reliable_estimates
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2
-from factorloc.types import Component, Estimate, Query, StepReport
+from factorloc.types import Component, Estimate, Query, StepReport, component_indices
 
 
 def _wrap(a: np.ndarray) -> np.ndarray:
@@ -253,7 +247,7 @@ class MonteCarloLocalization:
         mean, cov = weighted_mean_covariance(self.particles, self.weights)
         d2, dof = 0.0, 0
         for e in estimates:
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in e.components]
+            idx = component_indices(e.components)
             r = np.asarray(e.values) - mean[idx]
             if e.measures(Component.THETA):
                 r[-1] = _wrap(r[-1])

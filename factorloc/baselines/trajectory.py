@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
@@ -34,8 +35,9 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
 from factorloc.sim.generate import GeneratorConfig, render_reference
+from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import simulate_odometry, waypoint_trajectory
-from factorloc.sim.render import render_camera, render_cloud, render_scan
+from factorloc.sim.render import render_camera, render_cloud
 from factorloc.sim.world import World
 from factorloc.types import Odometry, PointCloud, Query
 
@@ -124,123 +126,21 @@ def generate_trajectory_scenario(
     config
         Rendering settings (reference, cameras, drift) as for :func:`~factorloc.sim.generate_scenario`.
     """
-    from factorloc.datasets.scenario import Scenario, ScenarioQuery, ScenarioReference
+    from factorloc.datasets.scenario import Scenario, ScenarioReference
 
-    if isinstance(world, str):
-        from factorloc.sim.world import world_by_name
-
-        world = world_by_name(world)
-    if not isinstance(world, World):
-        raise InputError(f"world must be a factorloc.sim.World or a world name, got {type(world).__name__}")
-    if isinstance(n_queries, bool) or not isinstance(n_queries, int) or n_queries < 1:
-        raise InputError(f"n_queries must be a positive integer, got {n_queries!r}")
-    if isinstance(kidnaps, bool) or not isinstance(kidnaps, int) or not 0 <= kidnaps < n_queries:
-        raise InputError(f"kidnaps must be an integer in [0, n_queries), got {kidnaps!r}")
-    unknown = [f for f in faults if f not in QUERY_FAULTS]
-    if unknown:
-        raise InputError(f"unknown fault(s) {unknown}; known: {QUERY_FAULTS} (plus kidnaps= and no_depth_stretches=)")
-    if not spacing_m > 0:
-        raise InputError(f"spacing_m must be > 0, got {spacing_m!r}")
+    world = _checked_world(world)
+    _check_arguments(n_queries, kidnaps, faults, spacing_m)
     rng = np.random.default_rng([seed, 7])
     reference = render_reference(world, config, seed)
-    ref = reference.T_world_reference
-    cl = config.clearance_m
-
-    # kidnap points split the run into legs; each leg is a continuous path
-    cuts = (
-        sorted(rng.choice(np.arange(max(1, n_queries // 4), n_queries), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    truths, odos, kidnapped = _trajectory(
+        world, reference.T_world_reference, n_queries, kidnaps, spacing_m, max_distance_m, config, rng
     )
-    bounds = [0, *cuts, n_queries]
-    truths: list[Pose2] = []
-    odos: list[Odometry] = []
-    kidnapped: set[int] = set()
-    T_odo_end: Pose2 | None = None
-    var_end = np.zeros(3)
-    start = Pose2(ref.x + 0.3, ref.y, float(rng.uniform(-math.pi, math.pi)))
-    for leg_i in range(len(bounds) - 1):
-        n_leg = bounds[leg_i + 1] - bounds[leg_i]
-        if leg_i > 0:  # carried 0.7–2 m away from where the last leg ended
-            last = truths[-1]
-            for _ in range(500):
-                d, a = rng.uniform(0.7, 2.0), rng.uniform(-math.pi, math.pi)
-                p = np.array([last.x + d * math.cos(a), last.y + d * math.sin(a)])
-                if bool(world.is_free(p[None], cl)[0]) and bool(world.line_of_sight(ref.translation[None], p[None])[0]):
-                    break
-            else:
-                raise InputError(f"no free pose to carry the kidnapped robot to near {last}")
-            start = Pose2(float(p[0]), float(p[1]), last.theta + rng.uniform(-1.0, 1.0))
-            kidnapped.add(bounds[leg_i])
-        path = _leg(world, ref, start, spacing_m * (n_leg + 1) + 1.0, rng, max_distance_m, cl)
-        run = simulate_odometry(path, rng, config.drift)
-        idx = _arc_samples(path, spacing_m, n_leg)
-        start0 = Pose2.from_array(path[0])
-        for i in idx:
-            truths.append(Pose2.from_array(path[i]))
-            o = run.odometry(int(i), model=config.drift)
-            if T_odo_end is None:
-                odos.append(o)
-            else:  # the odometry carries on from where it believed the robot was
-                rel = start0.between(o.T_world_robot)
-                var = var_end + np.array([o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad]) ** 2
-                odos.append(Odometry(T_odo_end.compose(rel), *np.sqrt(var)))
-        T_odo_end = odos[-1].T_world_robot
-        var_end = np.array([odos[-1].sigma_x_m, odos[-1].sigma_y_m, odos[-1].sigma_theta_rad]) ** 2
-        start = Pose2.from_array(path[idx[-1]])
-
     no_depth = {i for lo, hi in no_depth_stretches for i in range(int(lo), int(hi) + 1)}
-    queries = []
-    for i, (truth, odo) in enumerate(zip(truths, odos, strict=True)):
-        qrng = np.random.default_rng([seed, 1000 + i])
-        tags: list[str] = []
-        if i in kidnapped:
-            tags.append("kidnapped")
-        if faults and qrng.random() < fault_probability:
-            tags.append(faults[int(qrng.integers(len(faults)))])
-        meta: dict = {}
-        occluders = ()
-        if "occlusion" in tags:
-            occluders = place_occluders(
-                world, truth, qrng, n=int(qrng.integers(1, 3)), view_yaw_rad=float(config.image_yaws_rad[0])
-            )
-        glass: tuple[int, ...] = ()
-        if "glass" in tags:
-            f = most_seen_face(world, truth, config.depth_camera.yaw_in_robot_rad)
-            glass = () if f is None else (f,)
-        images = []
-        for yaw in config.image_yaws_rad:
-            im = render_camera(world, truth, replace(config.camera, yaw_in_robot_rad=float(yaw)), occluders=occluders)
-            img = im.image_bgr
-            if "lighting" in tags:
-                img = relight(img, float(qrng.uniform(0.45, 1.6)), float(qrng.uniform(0.6, 1.6)), int(qrng.integers(0, 3)), qrng)
-            if "blur" in tags:
-                img = motion_blur(img, float(qrng.uniform(6.0, 20.0)), float(qrng.uniform(-0.3, 0.3)))
-            if img is not im.image_bgr:
-                im = type(im)(img, im.hfov_rad, im.yaw_in_robot_rad, im.pitch_rad, im.cx_px)
-            images.append(im)
-        cloud = scan = None
-        if i in no_depth:
-            tags.append("no_depth")
-        else:
-            try:
-                cloud = render_cloud(world, truth, config.depth_camera, qrng, occluders=occluders, glass_faces=glass)
-            except InputError:
-                cloud = None
-            if "depth_dropout" in tags and cloud is not None:
-                cloud = PointCloud(depth_dropout(cloud.points_m, qrng, float(qrng.uniform(0.1, 0.3)), int(qrng.integers(2, 6))))
-            if config.scan:
-                scan = render_scan(world, truth, config.scan_beams, config.scan_height_m, rng=qrng, occluders=occluders)
-        qid = f"t{i:04d}"
-        queries.append(
-            ScenarioQuery(
-                query=Query(tuple(images), None, cloud, scan, odo, qid),
-                timestamp_s=float(i),
-                truth=truth,
-                faults=tuple(tags),
-                reference_id="ref0",
-                distance_from_reference_m=math.dist((truth.x, truth.y), (ref.x, ref.y)),
-                metadata=meta,
-            )
-        )
+    faulting = (tuple(faults), fault_probability)
+    queries = [
+        _query(world, reference.T_world_reference, i, truth, odo, seed, config, faulting, i in kidnapped, i in no_depth)
+        for i, (truth, odo) in enumerate(zip(truths, odos, strict=True))
+    ]
     return Scenario(
         name=name or f"{world.name}-trajectory-seed{seed}",
         references=(ScenarioReference("ref0", reference, {"height_m": config.panorama_height_m}),),
@@ -256,6 +156,169 @@ def generate_trajectory_scenario(
             "continuous_odometry": True,
             "spacing_m": spacing_m,
         },
+    )
+
+
+def _checked_world(world: World | str) -> World:
+    if isinstance(world, str):
+        from factorloc.sim.world import world_by_name
+
+        world = world_by_name(world)
+    if not isinstance(world, World):
+        raise InputError(f"world must be a factorloc.sim.World or a world name, got {type(world).__name__}")
+    return world
+
+
+def _check_arguments(n_queries: int, kidnaps: int, faults: Sequence[str], spacing_m: float) -> None:
+    if isinstance(n_queries, bool) or not isinstance(n_queries, int) or n_queries < 1:
+        raise InputError(f"n_queries must be a positive integer, got {n_queries!r}")
+    if isinstance(kidnaps, bool) or not isinstance(kidnaps, int) or not 0 <= kidnaps < n_queries:
+        raise InputError(f"kidnaps must be an integer in [0, n_queries), got {kidnaps!r}")
+    unknown = [f for f in faults if f not in QUERY_FAULTS]
+    if unknown:
+        raise InputError(f"unknown fault(s) {unknown}; known: {QUERY_FAULTS} (plus kidnaps= and no_depth_stretches=)")
+    if not spacing_m > 0:
+        raise InputError(f"spacing_m must be > 0, got {spacing_m!r}")
+
+
+def _kidnap_start(world: World, ref: Pose2, last: Pose2, rng: np.random.Generator, clearance_m: float) -> Pose2:
+    """Where a kidnapped robot is carried: 0.7–2 m from where the last leg ended, free and seen from the reference."""
+    for _ in range(500):
+        d, a = rng.uniform(0.7, 2.0), rng.uniform(-math.pi, math.pi)
+        p = np.array([last.x + d * math.cos(a), last.y + d * math.sin(a)])
+        if bool(world.is_free(p[None], clearance_m)[0]) and bool(world.line_of_sight(ref.translation[None], p[None])[0]):
+            return Pose2(float(p[0]), float(p[1]), last.theta + rng.uniform(-1.0, 1.0))
+    raise InputError(f"no free pose to carry the kidnapped robot to near {last}")
+
+
+def _trajectory(
+    world: World,
+    ref: Pose2,
+    n_queries: int,
+    kidnaps: int,
+    spacing_m: float,
+    max_distance_m: float,
+    config: GeneratorConfig,
+    rng: np.random.Generator,
+) -> tuple[list[Pose2], list[Odometry], set[int]]:
+    """The true poses, the odometry and the kidnapped query indices along the legs of one run.
+
+    Kidnap points split the run into legs; each leg is a continuous path, and the odometry carries on from
+    where it believed the robot was.
+    """
+    cuts = (
+        sorted(rng.choice(np.arange(max(1, n_queries // 4), n_queries), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    )
+    bounds = [0, *cuts, n_queries]
+    truths: list[Pose2] = []
+    odos: list[Odometry] = []
+    kidnapped: set[int] = set()
+    T_odo_end: Pose2 | None = None
+    var_end = np.zeros(3)
+    start = Pose2(ref.x + 0.3, ref.y, float(rng.uniform(-math.pi, math.pi)))
+    for leg_i in range(len(bounds) - 1):
+        n_leg = bounds[leg_i + 1] - bounds[leg_i]
+        if leg_i > 0:
+            start = _kidnap_start(world, ref, truths[-1], rng, config.clearance_m)
+            kidnapped.add(bounds[leg_i])
+        path = _leg(world, ref, start, spacing_m * (n_leg + 1) + 1.0, rng, max_distance_m, config.clearance_m)
+        run = simulate_odometry(path, rng, config.drift)
+        idx = _arc_samples(path, spacing_m, n_leg)
+        start0 = Pose2.from_array(path[0])
+        for i in idx:
+            truths.append(Pose2.from_array(path[i]))
+            o = run.odometry(int(i), model=config.drift)
+            if T_odo_end is None:
+                odos.append(o)
+            else:
+                rel = start0.between(o.T_world_robot)
+                var = var_end + np.array([o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad]) ** 2
+                odos.append(Odometry(T_odo_end.compose(rel), *np.sqrt(var)))
+        T_odo_end = odos[-1].T_world_robot
+        var_end = np.array([odos[-1].sigma_x_m, odos[-1].sigma_y_m, odos[-1].sigma_theta_rad]) ** 2
+        start = Pose2.from_array(path[idx[-1]])
+    return truths, odos, kidnapped
+
+
+def _images(
+    world: World, truth: Pose2, config: GeneratorConfig, tags: list[str], occluders: Any, qrng: np.random.Generator
+) -> list:
+    images = []
+    for yaw in config.image_yaws_rad:
+        im = render_camera(world, truth, replace(config.camera, yaw_in_robot_rad=float(yaw)), occluders=occluders)
+        img = im.image_bgr
+        if "lighting" in tags:
+            img = relight(img, float(qrng.uniform(0.45, 1.6)), float(qrng.uniform(0.6, 1.6)), int(qrng.integers(0, 3)), qrng)
+        if "blur" in tags:
+            img = motion_blur(img, float(qrng.uniform(6.0, 20.0)), float(qrng.uniform(-0.3, 0.3)))
+        if img is not im.image_bgr:
+            im = type(im)(img, im.hfov_rad, im.yaw_in_robot_rad, im.pitch_rad, im.cx_px)
+        images.append(im)
+    return images
+
+
+def _depth(
+    world: World,
+    truth: Pose2,
+    config: GeneratorConfig,
+    tags: list[str],
+    occluders: Any,
+    glass: tuple[int, ...],
+    qrng: np.random.Generator,
+) -> tuple[PointCloud | None, Any]:
+    try:
+        cloud = render_cloud(world, truth, config.depth_camera, qrng, occluders=occluders, glass_faces=glass)
+    except InputError:
+        cloud = None
+    if "depth_dropout" in tags and cloud is not None:
+        cloud = PointCloud(depth_dropout(cloud.points_m, qrng, float(qrng.uniform(0.1, 0.3)), int(qrng.integers(2, 6))))
+    scan = (
+        render_scan(world, truth, config.scan_beams, config.scan_height_m, rng=qrng, occluders=occluders) if config.scan else None
+    )
+    return cloud, scan
+
+
+def _query(
+    world: World,
+    ref: Pose2,
+    i: int,
+    truth: Pose2,
+    odo: Odometry,
+    seed: int,
+    config: GeneratorConfig,
+    faulting: tuple[tuple[str, ...], float],
+    kidnapped: bool,
+    no_depth: bool,
+) -> Any:
+    """Query ``i`` of the run (id ``t<i>``), rendered at ``truth`` with its faults drawn from its own generator."""
+    from factorloc.datasets.scenario import ScenarioQuery
+
+    faults, fault_probability = faulting
+    qrng = np.random.default_rng([seed, 1000 + i])
+    tags: list[str] = ["kidnapped"] if kidnapped else []
+    if faults and qrng.random() < fault_probability:
+        tags.append(faults[int(qrng.integers(len(faults)))])
+    occluders = ()
+    if "occlusion" in tags:
+        occluders = place_occluders(world, truth, qrng, n=int(qrng.integers(1, 3)), view_yaw_rad=float(config.image_yaws_rad[0]))
+    glass: tuple[int, ...] = ()
+    if "glass" in tags:
+        f = most_seen_face(world, truth, config.depth_camera.yaw_in_robot_rad)
+        glass = () if f is None else (f,)
+    images = _images(world, truth, config, tags, occluders, qrng)
+    cloud = scan = None
+    if no_depth:
+        tags.append("no_depth")
+    else:
+        cloud, scan = _depth(world, truth, config, tags, occluders, glass, qrng)
+    return ScenarioQuery(
+        query=Query(tuple(images), None, cloud, scan, odo, f"t{i:04d}"),
+        timestamp_s=float(i),
+        truth=truth,
+        faults=tuple(tags),
+        reference_id="ref0",
+        distance_from_reference_m=math.dist((truth.x, truth.y), (ref.x, ref.y)),
+        metadata={},
     )
 
 

@@ -1,4 +1,4 @@
-"""The step protocol every estimator implements, and the hypotheses it is seeded with."""
+"""The step protocol every estimator implements, the hypotheses it is seeded with, and the σ rule it applies."""
 
 from __future__ import annotations
 
@@ -6,7 +6,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
+from factorloc.stats import largest_sigma
 from factorloc.types import Component, Estimate, Query, Reference
+from factorloc.verdicts import Check, Unit
 
 
 @dataclass(frozen=True)
@@ -70,3 +72,24 @@ class Step(Protocol):
     def estimate(self, prepared: Any, query: Query, hypotheses: Hypotheses) -> Estimate | None:
         """This step's estimate for ``query``, or None when its inputs are absent."""
         ...
+
+
+def sigma_checks(
+    estimate: Estimate,
+    max_sigma_position_m: float | None = None,
+    max_sigma_heading_rad: float | None = None,
+) -> tuple[Check, ...]:
+    """The σ rule (the patent's reliability thresholds): the estimate's σ against its step's limits.
+
+    Codes ``"<step>.sigma_position"`` (the largest standard deviation of the 2×2 world-frame position
+    covariance, m: a corridor-shaped uncertainty fails on its long axis) and ``"<step>.sigma_heading"`` (rad),
+    one per limit given and component measured; a σ passes when it is at most the limit.
+    """
+    checks = []
+    if max_sigma_position_m is not None and estimate.measures(Component.X):
+        sigma = largest_sigma(estimate.covariance)
+        checks.append(Check.at_most(f"{estimate.step}.sigma_position", "σ position", sigma, max_sigma_position_m, Unit.METRE))
+    if max_sigma_heading_rad is not None and estimate.measures(Component.THETA):
+        sigma = estimate.sigma(Component.THETA)
+        checks.append(Check.at_most(f"{estimate.step}.sigma_heading", "σθ", sigma, max_sigma_heading_rad, Unit.RADIAN))
+    return tuple(checks)

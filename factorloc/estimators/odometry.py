@@ -5,8 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from factorloc.estimators.base import Hypotheses
+from factorloc.estimators.base import Hypotheses, sigma_checks
 from factorloc.types import Estimate, Odometry, Query, Reference
+from factorloc.verdicts import render_checks
 
 
 @dataclass(frozen=True)
@@ -24,17 +25,17 @@ class OdometryConfig:
 
 
 def estimate(odometry: Odometry, config: OdometryConfig = OdometryConfig()) -> Estimate:
-    """Turn the odometry into a full-pose estimate and judge its reliability."""
+    """The odometry as a full-pose estimate (world frame, per-axis σ), judged by the σ rule.
+
+    Checks ``odometry.sigma_position`` (the larger of σx, σy against ``max_sigma_position_m``) and
+    ``odometry.sigma_heading`` (σθ against ``max_sigma_heading_rad``), see
+    :func:`~factorloc.estimators.base.sigma_checks`.
+    """
     pose = odometry.T_world_robot
-    sx, sy, st = odometry.sigma_x_m, odometry.sigma_y_m, odometry.sigma_theta_rad
-    problems = []
-    if max(sx, sy) > config.max_sigma_position_m:
-        problems.append(f"σ position {max(sx, sy):.3f} m > {config.max_sigma_position_m:.3f} m")
-    if st > config.max_sigma_heading_rad:
-        problems.append(f"σθ {st:.3f} rad > {config.max_sigma_heading_rad:.3f} rad")
-    reliable = not problems
-    reason = "σ under thresholds" if reliable else "; ".join(problems)
-    return Estimate.pose("odometry", pose, sx, sy, st, reliable=reliable, reason=reason)
+    est = Estimate.pose("odometry", pose, odometry.sigma_x_m, odometry.sigma_y_m, odometry.sigma_theta_rad)
+    checks = sigma_checks(est, config.max_sigma_position_m, config.max_sigma_heading_rad)
+    reliable = all(c.passed for c in checks)
+    return est.with_verdict(reliable, render_checks(checks, only_failed=not reliable), checks)
 
 
 class OdometryStep:

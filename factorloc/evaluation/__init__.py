@@ -2,11 +2,15 @@
 
 - :mod:`factorloc.evaluation.metrics` — position/heading errors, RMSE/median/p95,
   NEES, outside-ellipse and confidently-wrong rates (pure array functions).
+- :mod:`factorloc.evaluation.cases` — what is evaluated (:class:`Case`, :class:`EvaluationSet`);
 - :mod:`factorloc.evaluation.runner` — :func:`run_hierarchy` (the estimators,
   once per query) and :func:`evaluate` (fuse with a strategy object, score);
-  :meth:`EvaluationReport.to_json_dict` holds the keys of ``docs/evaluation.md``.
+- :mod:`factorloc.evaluation.report` — the typed result: :meth:`EvaluationReport.summary`
+  (an :class:`EvaluationSummary`; ``to_json()`` gives the keys of ``docs/evaluation.md``);
+- :mod:`factorloc.evaluation.reasons` — why steps were not fused, counted by rule code.
 """
 
+from factorloc.evaluation.cases import Case, EvaluationSet, evaluation_set
 from factorloc.evaluation.metrics import (
     ErrorSummary,
     confidently_wrong,
@@ -19,18 +23,9 @@ from factorloc.evaluation.metrics import (
     position_error_m,
     summarize,
 )
-from factorloc.evaluation.runner import (
-    SCHEMA_VERSION,
-    Case,
-    EvaluationReport,
-    EvaluationSet,
-    HierarchyRun,
-    QueryResult,
-    QueryRun,
-    evaluate,
-    evaluation_set,
-    run_hierarchy,
-)
+from factorloc.evaluation.reasons import RuleTally
+from factorloc.evaluation.report import SCHEMA_VERSION, EvaluationReport, EvaluationSummary, StepSummary, Summary
+from factorloc.evaluation.runner import HierarchyRun, QueryResult, QueryRun, evaluate, run_hierarchy
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -38,9 +33,13 @@ __all__ = [
     "ErrorSummary",
     "EvaluationReport",
     "EvaluationSet",
+    "EvaluationSummary",
     "HierarchyRun",
     "QueryResult",
     "QueryRun",
+    "RuleTally",
+    "StepSummary",
+    "Summary",
     "confidently_wrong",
     "evaluate",
     "evaluation_set",

@@ -40,15 +40,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import chi2
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
-from factorloc.types import Component, Estimate
+from factorloc.stats import chi2_quantile
+from factorloc.types import Estimate, component_indices
 
 __all__ = [
     "ErrorSummary",
@@ -67,14 +66,6 @@ __all__ = [
     "summarize",
     "values_of_estimate",
 ]
-
-_INDEX = {Component.X: 0, Component.Y: 1, Component.THETA: 2}
-
-
-@lru_cache(maxsize=32)
-def chi2_quantile(probability: float, dof: int) -> float:
-    """The χ² quantile ``χ²_dof⁻¹(probability)`` (e.g. 11.345 for 0.99 and 3 dof)."""
-    return float(chi2.ppf(probability, dof))
 
 
 # --------------------------------------------------------------------------
@@ -336,14 +327,13 @@ def overlap_fraction(query_points_m: np.ndarray, reference_points_m: np.ndarray 
 def values_of_estimate(estimate: Estimate) -> np.ndarray:
     """The estimate as a 3-vector (x_m, y_m, theta_rad), ``nan`` where it measures nothing."""
     out = np.full(3, np.nan)
-    for c, v in zip(estimate.components, estimate.values, strict=True):
-        out[_INDEX[c]] = v
+    out[component_indices(estimate.components)] = estimate.values
     return out
 
 
 def covariance_of_estimate(estimate: Estimate) -> np.ndarray:
     """The estimate's covariance embedded in 3×3 (x, y, θ), ``inf`` variance where it measures nothing."""
     out = np.diag(np.full(3, np.inf))
-    idx = [_INDEX[c] for c in estimate.components]
+    idx = component_indices(estimate.components)
     out[np.ix_(idx, idx)] = estimate.covariance
     return out

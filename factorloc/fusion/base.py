@@ -11,9 +11,7 @@ import numpy as np
 
 from factorloc.errors import FusionError
 from factorloc.geometry import Pose2, wrap_angle
-from factorloc.types import Component, Estimate, Query, StepReport
-
-_INDEX = {Component.X: 0, Component.Y: 1, Component.THETA: 2}
+from factorloc.types import FULL, Component, Estimate, Query, StepReport, component_indices
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,13 +64,28 @@ class SequentialStrategy(Protocol):
 
 def indices(estimate: Estimate) -> list[int]:
     """Positions of the estimate's components in (x, y, θ)."""
-    return [_INDEX[c] for c in estimate.components]
+    return component_indices(estimate.components)
 
 
 def undetermined_components(estimates: Sequence[Estimate]) -> tuple[Component, ...]:
     """Components that no estimate measures (position counts as x and y together)."""
     measured = {c for e in estimates for c in e.components}
-    return tuple(c for c in (Component.X, Component.Y, Component.THETA) if c not in measured)
+    return tuple(c for c in FULL if c not in measured)
+
+
+def mark_undetermined(covariance: np.ndarray, undetermined: Sequence[Component]) -> np.ndarray:
+    """A copy of a 3×3 (x, y, θ) covariance with each ``undetermined`` component unknown.
+
+    Its variance becomes ``inf`` and its cross terms 0: the convention of :class:`Fused` and
+    :class:`~factorloc.types.Localization` for a component that no fused estimate constrains.
+    """
+    cov = np.array(covariance, dtype=np.float64)
+    if undetermined:
+        idx = component_indices(undetermined)
+        cov[idx, :] = 0.0
+        cov[:, idx] = 0.0
+        cov[idx, idx] = np.inf
+    return cov
 
 
 def check_estimates(estimates: Sequence[Estimate]) -> list[Estimate]:

@@ -33,7 +33,7 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from factorloc.fusion.base import Fused, check_estimates, undetermined_components
+from factorloc.fusion.base import Fused, check_estimates, mark_undetermined, undetermined_components
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate
 
@@ -129,12 +129,7 @@ class GraphFusion:
             params.setMaxIterations(self.max_iterations)
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         pose = Pose2.from_gtsam(result.atPose2(POSE_KEY))
-        cov = rotate_covariance(_body_covariance(graph, result), pose.theta)
-        if undetermined:
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in undetermined]
-            cov[idx, :] = 0.0
-            cov[:, idx] = 0.0
-            cov[idx, idx] = np.inf
+        cov = mark_undetermined(rotate_covariance(_body_covariance(graph, result), pose.theta), undetermined)
         return Fused(pose, cov, undetermined)
 
     def __repr__(self) -> str:

@@ -37,10 +37,10 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from factorloc.baselines.common import reliable_estimates
 from factorloc.errors import ConfigError
-from factorloc.fusion.base import Fused, check_estimates, undetermined_components
+from factorloc.fusion.base import Fused, check_estimates, mark_undetermined, undetermined_components
 from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance, noise_model
+from factorloc.fusion.sequential import reliable_estimates
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate, Query, StepReport
 
@@ -128,12 +128,7 @@ class RobustGraphFusion:
         else:
             result = self._multistart(graph, ests, start0)
         pose = Pose2.from_gtsam(result.atPose2(POSE_KEY))
-        cov = rotate_covariance(_body_covariance(graph, result), pose.theta)
-        if undetermined:
-            idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in undetermined]
-            cov[idx, :] = 0.0
-            cov[:, idx] = 0.0
-            cov[idx, idx] = np.inf
+        cov = mark_undetermined(rotate_covariance(_body_covariance(graph, result), pose.theta), undetermined)
         return Fused(pose, cov, undetermined)
 
     def _starts(self, ests: list[Estimate], start0: gtsam.Pose2) -> list[gtsam.Pose2]:

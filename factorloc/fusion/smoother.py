@@ -3,7 +3,7 @@
 One ``gtsam.Pose2`` variable per query. Consecutive poses of one odometry run
 are linked by a ``BetweenFactorPose2`` holding the odometry motion
 ``Δ = T_odom(k-1)⁻¹ T_odom(k)`` with the noise of
-:class:`~factorloc.baselines.common.MotionModel`; every query's gated
+:class:`~factorloc.fusion.sequential.MotionModel`; every query's gated
 estimates become the same unary factors as in the single-pose graph
 (:func:`factorloc.fusion.graph.factors_for`). The graph is solved incrementally
 (Kaess et al., *iSAM2*, IJRR 2012): each query adds one variable and a few
@@ -18,7 +18,7 @@ full-pose estimate placed first, so that it loses ties) and the query's
 estimates. When the gate rejects the prediction (kidnapped robot), the new
 pose is not linked to the previous one: a new chain starts from the
 measurements. Where a new odometry run starts (see
-:class:`~factorloc.baselines.common.OdometryLink`), the odometry step's
+:class:`~factorloc.fusion.sequential.OdometryLink`), the odometry step's
 absolute estimate is a unary factor like in the per-query fusion.
 
 :class:`FixedLagSmoother` is the same graph in GTSAM's
@@ -36,7 +36,11 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from factorloc.baselines.common import (
+from factorloc.errors import InputError
+from factorloc.fusion.base import Fused
+from factorloc.fusion.graph import factors_for
+from factorloc.fusion.product import ProductFusion
+from factorloc.fusion.sequential import (
     ODOMETRY_STEP,
     MotionModel,
     OdometryLink,
@@ -46,20 +50,15 @@ from factorloc.baselines.common import (
     prior_estimate,
     reliable_estimates,
 )
-from factorloc.config import GatingConfig
-from factorloc.errors import InputError
-from factorloc.fusion.base import Fused
-from factorloc.fusion.graph import factors_for
-from factorloc.fusion.product import ProductFusion
+from factorloc.gating import GatingConfig
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Query, StepReport
 
 log = logging.getLogger(__name__)
 
-#: σ of the placeholder prior that anchors a component nothing has measured yet (m and rad).
-#: Far beyond any indoor uncertainty, yet small enough for GTSAM's Cholesky: with 1e3 m, a
-#: chain that starts with a heading only and is then linked by cm-level odometry is declared
-#: an indeterminate system (condition ~1e9); measured, 100 m still works, 300 m fails.
+#: σ of the placeholder prior that anchors a component nothing has measured yet (m and rad): far beyond any
+#: indoor uncertainty, yet small enough for GTSAM's Cholesky on a chain linked by cm-level odometry (the
+#: measurement that set it: ``docs/calibration/fusion.md``).
 PLACEHOLDER_SIGMA = 30.0
 
 
@@ -78,7 +77,7 @@ class TrajectorySmoother:
         The consistency gate (default: the library's); ``None`` accepts every reliable estimate.
     continuous
         Whether consecutive queries share one odometry run (see
-        :class:`~factorloc.baselines.common.OdometryLink`).
+        :class:`~factorloc.fusion.sequential.OdometryLink`).
     relinearize_threshold
         iSAM2's relinearization threshold (tangent-space units).
 
@@ -253,33 +252,4 @@ class FixedLagSmoother(TrajectorySmoother):
         return f"FixedLagSmoother(lag={self.lag})"
 
 
-def smoothed_report(run, smoother: TrajectorySmoother | None = None):  # noqa: ANN001, ANN201 - HierarchyRun -> EvaluationReport
-    """Evaluate the *offline* (fully smoothed) trajectory of ``run``, with the keys of :func:`factorloc.evaluation.evaluate`.
-
-    :func:`~factorloc.evaluation.evaluate` scores what a sequential strategy
-    answers at each query (online: only the past is known). After the last
-    query, the smoother re-estimates every pose with all the evidence, past
-    and future; this report scores those poses and their marginal
-    covariances. Latencies are the online updates' (the final re-estimation is not included).
-    The strategy is named ``"<name>_offline"``.
-    """
-    from dataclasses import replace
-
-    from factorloc.evaluation.runner import EvaluationReport, evaluate
-
-    sm = smoother or TrajectorySmoother()
-    online = evaluate(run, sm)
-    poses = sm.smoothed()
-    results = []
-    for r, (pose, cov) in zip(online.results, poses, strict=True):
-        c = np.array(cov)
-        for i, bad in enumerate(np.diag(c) > 0.25 * PLACEHOLDER_SIGMA**2):
-            if bad:
-                c[i, :] = 0.0
-                c[:, i] = 0.0
-                c[i, i] = np.inf
-        results.append(replace(r, pose=pose, covariance=c))
-    return EvaluationReport(run, f"{sm.name}_offline", tuple(results))
-
-
-__all__ = ["FixedLagSmoother", "PLACEHOLDER_SIGMA", "TrajectorySmoother", "smoothed_report"]
+__all__ = ["FixedLagSmoother", "PLACEHOLDER_SIGMA", "TrajectorySmoother"]

@@ -37,6 +37,7 @@ renderer), :func:`relight`, :func:`motion_blur`, :func:`depth_dropout`,
 
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
 from factorloc.sim.generate import FAULTS, GeneratorConfig, generate_scenario
+from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import (
     DriftModel,
     OdometryRun,
@@ -47,17 +48,15 @@ from factorloc.sim.motion import (
     simulate_odometry,
     waypoint_trajectory,
 )
+from factorloc.sim.raycast import Hits, cast_rays
 from factorloc.sim.render import (
     DepthCamera,
-    Hits,
     PinholeCamera,
-    cast_rays,
     panorama_rays,
     render_camera,
     render_cloud,
     render_cloud_360,
     render_panorama,
-    render_scan,
 )
 from factorloc.sim.textures import BASE_TEXTURES, DECAL_IMAGES
 from factorloc.sim.world import (

@@ -196,13 +196,13 @@ def most_seen_face(
 ) -> int | None:
     """Index (into ``world.segments.faces``) of the face most seen at mid-wall height within ±``half_fov_rad``
     of the view direction ``view_yaw_rad`` (robot frame); None if no face is in view."""
-    from factorloc.sim.render import _FACE, cast_rays
+    from factorloc.sim.raycast import FACE, cast_rays
 
     az = view_yaw_rad + np.linspace(-half_fov_rad, half_fov_rad, n_rays)
     hits = cast_rays(
         world, T_world_robot, 0.5 * world.wall_height_m, az, np.zeros(1), np.ones(n_rays), np.full(n_rays, 0.01), texture=False
     )
-    faces = hits.face[0][hits.kind[0] == _FACE]
+    faces = hits.face[0][hits.kind[0] == FACE]
     if len(faces) == 0:
         return None
     vals, counts = np.unique(faces, return_counts=True)

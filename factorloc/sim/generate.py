@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.sim.determinism import deterministic
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
+from factorloc.sim.laser import render_scan
 from factorloc.sim.motion import DriftModel, random_walk, simulate_odometry
 from factorloc.sim.render import (
     DepthCamera,
@@ -44,10 +46,9 @@ from factorloc.sim.render import (
     render_cloud,
     render_cloud_360,
     render_panorama,
-    render_scan,
 )
 from factorloc.sim.world import World
-from factorloc.types import PointCloud, Query, Reference
+from factorloc.types import Odometry, PointCloud, Query, Reference
 
 #: The fault names :func:`generate_scenario` understands.
 FAULTS = ("kidnapped", "occlusion", "lighting", "blur", "depth_dropout", "glass", "corridor")
@@ -183,7 +184,35 @@ def generate_query(
     band = cfg.distance_bands_m[index % len(cfg.distance_bands_m)]
     truth = _query_pose(world, T_ref, rng, band, cfg, "corridor" in tags)
     meta: dict = {"distance_band_m": list(band)}
+    odometry = _odometry(world, truth, tags, rng, cfg, meta, index)
+    occluders = ()
+    if "occlusion" in tags:
+        occluders = place_occluders(world, truth, rng, n=int(rng.integers(1, 3)), view_yaw_rad=float(cfg.image_yaws_rad[0]))
+        meta["occluders"] = [o.name for o in occluders]
+    glass_faces: tuple[int, ...] = ()
+    if "glass" in tags:
+        f = most_seen_face(world, truth, cfg.depth_camera.yaw_in_robot_rad)
+        glass_faces = () if f is None else (f,)
+        meta["glass_faces"] = list(glass_faces)
+    images = _images(world, truth, tags, occluders, rng, cfg, meta)
+    cloud = _cloud(world, truth, tags, occluders, glass_faces, rng, cfg, meta)
+    scan = render_scan(world, truth, cfg.scan_beams, cfg.scan_height_m, rng=rng, occluders=occluders) if cfg.scan else None
+    qid = f"q{index:04d}"
+    return {
+        "query": Query(tuple(images), None, cloud, scan, odometry, qid),
+        "timestamp_s": cfg.query_period_s * (index + 1),
+        "truth": truth,
+        "faults": tags,
+        "reference_id": "ref0",
+        "distance_from_reference_m": math.dist((truth.x, truth.y), (T_ref.x, T_ref.y)),
+        "metadata": meta,
+    }
 
+
+def _odometry(
+    world: World, truth: Pose2, tags: Sequence[str], rng: np.random.Generator, cfg: GeneratorConfig, meta: dict, index: int
+) -> Odometry:
+    """The odometry of a query reached along a random path from its reset (a kidnapped robot: to a pose nearby)."""
     length = float(rng.uniform(*cfg.path_length_range_m))
     if "kidnapped" in tags:
         # the robot drove to a pose 0.7–2 m away, then was pushed/carried to the true pose
@@ -200,22 +229,16 @@ def generate_query(
     else:
         path = _path_to(world, truth, length, rng, cfg)
     run = simulate_odometry(path, rng, cfg.drift)
-    odometry = run.odometry(-1, model=cfg.drift)
     meta["odometry_reset"] = [float(v) for v in path[0]]
     meta["path_length_m"] = float(run.distance_m[-1])
     meta["path_rotation_rad"] = float(run.rotation_rad[-1])
+    return run.odometry(-1, model=cfg.drift)
 
-    occluders = ()
-    if "occlusion" in tags:
-        occluders = place_occluders(world, truth, rng, n=int(rng.integers(1, 3)), view_yaw_rad=float(cfg.image_yaws_rad[0]))
-        meta["occluders"] = [o.name for o in occluders]
-    glass_faces: tuple[int, ...] = ()
-    if "glass" in tags:
-        f = most_seen_face(world, truth, cfg.depth_camera.yaw_in_robot_rad)
-        glass_faces = () if f is None else (f,)
-        meta["glass_faces"] = list(glass_faces)
 
-    images = []
+def _images(
+    world: World, truth: Pose2, tags: Sequence[str], occluders: Any, rng: np.random.Generator, cfg: GeneratorConfig, meta: dict
+) -> list:
+    """The query's camera images, relit and blurred by its faults."""
     light = None
     if "lighting" in tags:
         light = (float(rng.uniform(0.45, 1.6)), float(rng.uniform(0.6, 1.6)), int(rng.integers(0, 3)))
@@ -224,6 +247,7 @@ def generate_query(
     if "blur" in tags:
         blur = (float(rng.uniform(6.0, 20.0)), float(rng.uniform(-0.3, 0.3)))
         meta["blur"] = {"length_px": blur[0], "angle_rad": blur[1]}
+    images = []
     for yaw in cfg.image_yaws_rad:
         cam = replace(cfg.camera, yaw_in_robot_rad=float(yaw))
         im = render_camera(world, truth, cam, occluders=occluders)
@@ -235,7 +259,20 @@ def generate_query(
         if img is not im.image_bgr:
             im = type(im)(img, im.hfov_rad, im.yaw_in_robot_rad, im.pitch_rad, im.cx_px)
         images.append(im)
+    return images
 
+
+def _cloud(
+    world: World,
+    truth: Pose2,
+    tags: Sequence[str],
+    occluders: Any,
+    glass_faces: tuple[int, ...],
+    rng: np.random.Generator,
+    cfg: GeneratorConfig,
+    meta: dict,
+) -> PointCloud | None:
+    """The query's depth cloud (None when nothing is in range), with its depth dropout."""
     try:
         cloud = render_cloud(world, truth, cfg.depth_camera, rng, occluders=occluders, glass_faces=glass_faces)
     except InputError:  # nothing in range (e.g. only glass in view): the query has no cloud
@@ -245,17 +282,7 @@ def generate_query(
         frac, holes = float(rng.uniform(0.1, 0.3)), int(rng.integers(2, 6))
         cloud = PointCloud(depth_dropout(cloud.points_m, rng, frac, holes))
         meta["depth_dropout"] = {"random_fraction": frac, "holes": holes}
-    scan = render_scan(world, truth, cfg.scan_beams, cfg.scan_height_m, rng=rng, occluders=occluders) if cfg.scan else None
-    qid = f"q{index:04d}"
-    return {
-        "query": Query(tuple(images), None, cloud, scan, odometry, qid),
-        "timestamp_s": cfg.query_period_s * (index + 1),
-        "truth": truth,
-        "faults": tags,
-        "reference_id": "ref0",
-        "distance_from_reference_m": math.dist((truth.x, truth.y), (T_ref.x, T_ref.y)),
-        "metadata": meta,
-    }
+    return cloud
 
 
 @deterministic

@@ -9,10 +9,10 @@ import pytest
 from synthetic_trajectories import position_errors
 
 from factorloc.baselines import ExtendedKalmanFilter
-from factorloc.baselines.common import MotionModel, compose_with_covariance
 from factorloc.errors import InputError
 from factorloc.evaluation import evaluate
 from factorloc.fusion import ProductFusion
+from factorloc.fusion.sequential import MotionModel, compose_with_covariance
 from factorloc.fusion.smoother import TrajectorySmoother
 from factorloc.geometry import Pose2
 
@@ -25,8 +25,8 @@ def _run(strategy, syn):
 def test_ekf_beats_per_query_fusion_where_icp_is_missing(synthetic) -> None:
     syn = synthetic(30, seed=1, no_icp=(10, 18))
     run = syn.run()
-    ekf = evaluate(run, ExtendedKalmanFilter()).to_json_dict()
-    product = evaluate(run, ProductFusion()).to_json_dict()
+    ekf = evaluate(run, ExtendedKalmanFilter()).to_json()
+    product = evaluate(run, ProductFusion()).to_json()
     stretch = product["by_fault"]["no_depth"]["position_rmse_m"]
     assert ekf["by_fault"]["no_depth"]["position_rmse_m"] < 0.7 * stretch
     assert ekf["position_rmse_m"] < 0.05

@@ -10,9 +10,10 @@ from synthetic_trajectories import BOUNDS
 
 from factorloc.baselines import ExtendedKalmanFilter, MarkovGridLocalization, MonteCarloLocalization
 from factorloc.evaluation import evaluate
+from factorloc.evaluation.offline import smoothed_report
 from factorloc.fusion import GraphFusion, ProductFusion
 from factorloc.fusion.robust import RobustGraphFusion
-from factorloc.fusion.smoother import FixedLagSmoother, TrajectorySmoother, smoothed_report
+from factorloc.fusion.smoother import FixedLagSmoother, TrajectorySmoother
 
 KEYS = [
     "position_rmse_m",
@@ -49,7 +50,7 @@ def run():
 @pytest.mark.parametrize("name", list(STRATEGIES))
 def test_strategy_gives_the_evaluation_keys_and_is_accurate(run, name: str) -> None:
     factory, max_rmse = STRATEGIES[name]
-    d = evaluate(run, factory()).to_json_dict()
+    d = evaluate(run, factory()).to_json()
     json.dumps(d)
     for k in KEYS:
         assert k in d, k
@@ -62,8 +63,8 @@ def test_strategy_gives_the_evaluation_keys_and_is_accurate(run, name: str) -> N
 
 
 def test_offline_smoothed_report_has_the_keys_and_beats_per_query_fusion_where_icp_is_missing(run) -> None:
-    offline = smoothed_report(run).to_json_dict()
-    product = evaluate(run, ProductFusion()).to_json_dict()
+    offline = smoothed_report(run).to_json()
+    product = evaluate(run, ProductFusion()).to_json()
     for k in KEYS:
         assert k in offline
     assert offline["strategy"] == "smoother_offline"

@@ -227,7 +227,7 @@ def test_missing_field(saved: Path) -> None:
 
 def test_non_numeric_field(saved: Path) -> None:
     _edit_manifest(saved, lambda m: m["queries"][0]["images"][0].update(hfov_rad="wide"))
-    with pytest.raises(DatasetError, match=r"queries\[0\]\.images\[0\]\.hfov_rad': must be a number"):
+    with pytest.raises(DatasetError, match=r"queries\[0\]\.images\[0\]\.hfov_rad': must be a real number"):
         load_scenario(saved)
 
 

@@ -15,6 +15,7 @@ from factorloc.estimators.base import Hypotheses
 from factorloc.evaluation import Case, EvaluationSet, evaluate, run_hierarchy
 from factorloc.fusion.base import Fused
 from factorloc.types import Component
+from factorloc.verdicts import Check, Unit
 
 STABLE_KEYS = (
     "position_rmse_m",
@@ -55,13 +56,10 @@ class NoisyPoseStep:
         t = self.truth[query.id].as_array()
         v = t + self.error_scale * self.sigmas * self.rng.normal(size=3)
         reliable = self.blind_tag not in self.tags.get(query.id, ())
-        return Estimate.pose(
-            self.name,
-            Pose2.from_array(v),
-            *self.sigmas,
-            reliable=reliable,
-            reason="ok" if reliable else f"only {int(self.rng.integers(3, 9))} matches < 10",
+        matches = Check.at_least(
+            f"{self.name}.matches", "matches", 10 if reliable else int(self.rng.integers(3, 9)), 10, Unit.COUNT
         )
+        return Estimate.pose(self.name, Pose2.from_array(v), *self.sigmas, reliable=reliable, checks=(matches,))
 
 
 class HeadingStep:
@@ -95,7 +93,7 @@ def test_a_calibrated_hierarchy_scores_its_expected_accuracy_and_nees() -> None:
     data, truth, _ = _dataset(300)
     steps = [NoisyPoseStep("odometry", truth, [0.05, 0.05, 0.02], 1), NoisyPoseStep("icp", truth, [0.02, 0.02, 0.01], 2)]
     report = evaluate(data, ProductFusion(), steps=steps)
-    out = report.to_json_dict()
+    out = report.to_json()
     # fused σ per axis: 1/√(1/5² + 1/2²) cm = 1.857 cm; position RMSE = √2 · that
     s_xy = 1 / math.sqrt(1 / 0.05**2 + 1 / 0.02**2)
     s_th = 1 / math.sqrt(1 / 0.02**2 + 1 / 0.01**2)
@@ -119,7 +117,7 @@ def test_a_calibrated_hierarchy_scores_its_expected_accuracy_and_nees() -> None:
 def test_overconfident_step_shows_in_nees_and_in_its_own_false_positives() -> None:
     data, truth, _ = _dataset(200)
     steps = [NoisyPoseStep("icp", truth, [0.01, 0.01, 0.01], 3, error_scale=3.0)]  # errors 3× the claimed σ
-    out = evaluate(data, ProductFusion(), steps=steps).to_json_dict()
+    out = evaluate(data, ProductFusion(), steps=steps).to_json()
     assert out["nees_mean"] == pytest.approx(27.0, rel=0.2)
     assert out["steps"]["icp"]["position_nees_mean"] == pytest.approx(18.0, rel=0.2)
     assert out["steps"]["icp"]["heading_nees_mean"] == pytest.approx(9.0, rel=0.25)
@@ -134,7 +132,7 @@ def test_json_has_the_stable_keys_per_fault_and_per_step_and_is_strict_json() ->
         NoisyPoseStep("odometry", truth, [0.05, 0.05, 0.02], 1),
         NoisyPoseStep("icp", truth, [0.02, 0.02, 0.01], 2, blind_tag="occlusion", tags=tags),
     ]
-    out = evaluate(data, steps=steps).to_json_dict()
+    out = evaluate(data, steps=steps).to_json()
     text = json.dumps(out, allow_nan=False)  # no NaN/inf leak into the JSON
     assert json.loads(text)["schema_version"] == 1
     for scope in (out, out["by_fault"]["occlusion"], out["by_fault"]["none"]):
@@ -146,15 +144,20 @@ def test_json_has_the_stable_keys_per_fault_and_per_step_and_is_strict_json() ->
     icp = out["steps"]["icp"]
     assert icp["reliable_rate"] == pytest.approx(8 / 12)
     assert out["by_fault"]["occlusion"]["steps"]["icp"]["reliable_rate"] == 0.0
-    # reasons are counted with their numbers masked, so 4 different match counts are one cause
-    assert icp["gate_reasons"] == {"unreliable: only # matches < #": 4}
+    # reasons are counted by rule code, so 4 different match counts are one cause, and the range of the counts is kept
+    assert icp["gate_reasons"] == {"unreliable: icp.matches": 4}
+    (rule,) = icp["gate_rules"]
+    assert (
+        rule["count"] == 4 and rule["limit_min"] == rule["limit_max"] == 10 and 3 <= rule["value_min"] <= rule["value_max"] <= 8
+    )
+    assert rule["text"] == f"matches {rule['value_min']:.0f}–{rule['value_max']:.0f} < 10"
     assert icp["status_rates"]["unreliable"] == pytest.approx(4 / 12)
     assert out["strategy"] == "graph" and out["scenario"] == "synthetic"
 
 
 def test_heading_only_results_count_as_heading_but_not_position() -> None:
     data, truth, _ = _dataset(20)
-    out = evaluate(data, ProductFusion(), steps=[HeadingStep(truth, 0.01, 4)]).to_json_dict()
+    out = evaluate(data, ProductFusion(), steps=[HeadingStep(truth, 0.01, 4)]).to_json()
     assert out["position_determined_rate"] == 0.0 and out["heading_determined_rate"] == 1.0
     assert out["position_rmse_m"] is None and out["position_count"] == 0
     assert out["heading_count"] == 20 and out["heading_rmse_deg"] == pytest.approx(math.degrees(0.01), rel=0.35)
@@ -213,7 +216,7 @@ def test_a_sequential_strategy_is_reset_once_and_fed_in_scenario_order() -> None
     strat = LastPoseMemory()
     report = evaluate(data, strat, steps=steps)
     assert strat.resets == 1 and strat.calls == [c.query.id for c in data.cases]
-    out = report.to_json_dict()
+    out = report.to_json()
     assert out["strategy"] == "memory"
     # q000 is occluded and first: nothing known yet → undetermined; q002… reuse the previous pose (wrong)
     assert out["determined_rate"] == pytest.approx(8 / 9)
@@ -281,7 +284,7 @@ def test_a_scenario_with_two_references_localizes_each_query_against_its_own() -
     assert [r.reports[0].estimate.diagnostics["reference"] for r in report.results] == ["hall", "hall", "kitchen", "kitchen"]
     # the scenario's own distance wins; otherwise it is measured from the query's reference
     assert [r.distance_to_reference_m for r in report.results] == pytest.approx([7.5, 2.0, 3.0, 2.0])
-    out = report.to_json_dict()
+    out = report.to_json()
     assert out["scenario"] == "two-rooms" and out["by_fault"]["blur"]["queries"] == 1
     assert out["position_rmse_m"] == pytest.approx(0.0, abs=1e-12)
 
@@ -307,7 +310,7 @@ def test_overlapping_scope_holds_the_queries_whose_scan_saw_the_reference_surfac
     overlaps = [r.view_overlap for r in report.results]
     assert overlaps[0] == pytest.approx(1.0) and overlaps[1] == pytest.approx(101 / 121) and overlaps[2] == 0.0
     assert math.isnan(overlaps[3])
-    out = report.to_json_dict()
+    out = report.to_json()
     assert out["overlapping"]["queries"] == 2 and out["overlapping_rate"] == pytest.approx(2 / 3)
     expected = math.sqrt(np.mean([float(np.hypot(*report.errors[i, :2])) ** 2 for i in (0, 1)]))
     assert out["overlapping"]["position_rmse_m"] == pytest.approx(expected)

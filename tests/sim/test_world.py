@@ -50,7 +50,7 @@ def test_world_file_round_trip(tmp_path: Path, suffix: str) -> None:
 def test_world_file_errors_name_the_field(tmp_path: Path) -> None:
     p = tmp_path / "bad.yaml"
     p.write_text("format_version: 1\nname: x\nwalls:\n  - {start_xy: [0, 0], end_xy: [1, 0], colour: red}\n")
-    with pytest.raises(InputError, match=r"bad.yaml.*walls\[0\] has unknown field\(s\) \['colour'\]"):
+    with pytest.raises(InputError, match=r"bad.yaml.*walls\[0\] has unknown key\(s\) \['colour'\]"):
         load_world(p)
     p.write_text("format_version: 9\nname: x\n")
     with pytest.raises(InputError, match="unknown world format version 9"):

@@ -1,0 +1,242 @@
+"""The consistency rule (beyond the patent): a reliable estimate that disagrees with the fusion of the others is rejected.
+
+Like the patent's fusion, the test is per axis group: positions against positions (2 degrees of freedom),
+headings against headings (1), so a full-pose estimate can lose its position and keep its heading — unless
+``full_pose_whole``, where a full pose that loses its position loses its heading too. Each tested group gives
+a :class:`~factorloc.verdicts.Check` (``gate.consistency.position`` / ``.heading``: the squared Mahalanobis
+distance against the χ² quantile), and a heading dropped with its position a ``gate.consistency.whole_pose``
+flag.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from factorloc.geometry import wrap_angle
+from factorloc.stats import chi2_quantile
+from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
+from factorloc.verdicts import Check, Comparison, Unit, render_checks
+
+__all__ = ["GROUPS", "WHOLE_POSE", "Verdict", "consistency_gate", "consistency_code"]
+
+GROUPS: dict[str, tuple[Component, ...]] = {"position": POSITION, "heading": HEADING}
+
+#: Rule code of a heading dropped with its full pose's position.
+WHOLE_POSE = "gate.consistency.whole_pose"
+
+
+def consistency_code(group: str) -> str:
+    """The rule code of the consistency test of ``group`` (``"position"`` or ``"heading"``)."""
+    return f"gate.consistency.{group}"
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The consistency gate's verdict on one estimate.
+
+    ``accepted`` lists the components that pass (all, some or none); ``checks`` holds one check per group
+    tested (and the whole-pose flag when the heading went with the position); ``mahalanobis_sq`` the last
+    d² of each group tested.
+    """
+
+    estimate: Estimate
+    accepted: tuple[Component, ...]
+    checks: tuple[Check, ...] = ()
+    mahalanobis_sq: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def fully_accepted(self) -> bool:
+        return self.accepted == self.estimate.components
+
+    @property
+    def tested(self) -> bool:
+        """Whether any other step measured the same components (so that something was tested)."""
+        return bool(self.checks)
+
+    @property
+    def reason(self) -> str:
+        """The failed checks rendered, or whether the estimate was consistent / not tested."""
+        if any(not c.passed for c in self.checks):
+            return render_checks(self.checks)
+        if self.checks:
+            return "consistent with the other steps"
+        return "consistency not tested (no other step measures the same components)"
+
+    def accepted_estimate(self) -> Estimate | None:
+        """The part of the estimate that may be fused (None if nothing is left)."""
+        if not self.accepted:
+            return None
+        if self.fully_accepted:
+            return self.estimate
+        return self.estimate.marginal(self.accepted)
+
+
+def _inv(m: tuple[float, ...]) -> tuple[float, ...]:
+    """Inverse of a symmetric 1×1 ``(a,)`` or 2×2 ``(a, b, d)`` (= [[a, b], [b, d]]) matrix, same packing."""
+    if len(m) == 1:
+        return (1.0 / m[0],)
+    a, b, d = m
+    det = a * d - b * b
+    return (d / det, -b / det, a / det)
+
+
+def _others(
+    i: int, active: list[int], values: list[tuple[float, ...]], covariances: list[tuple[float, ...]], lam: list, lam_z: list
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Mean and packed covariance of the product of the active estimates other than ``i``.
+
+    A single other estimate is used as it is (its covariance, not the inverse of its information: an
+    estimate unknown along one direction, 30 m vs 1 cm, loses ~7 digits in the round trip); several are
+    summed directly in information form (not total − own: no cancellation).
+    """
+    others = [j for j in active if j != i]
+    if len(others) == 1:
+        return values[others[0]], covariances[others[0]]
+    k = len(values[0])
+    cov_o = _inv(tuple(sum(lam[j][m] for j in others) for m in range(len(lam[0]))))
+    b = [sum(lam_z[j][m] for j in others) for m in range(k)]
+    mean_o = (cov_o[0] * b[0],) if k == 1 else (cov_o[0] * b[0] + cov_o[1] * b[1], cov_o[1] * b[0] + cov_o[2] * b[1])
+    return mean_o, cov_o
+
+
+Packed = tuple[float, ...]
+
+
+def _d2(z: Packed, c: Packed, mean_o: Packed, cov_o: Packed, is_heading: bool) -> float:
+    """Squared Mahalanobis distance of one estimate (value ``z``, packed covariance ``c``) from the others' product."""
+    if len(z) == 1:
+        err = z[0] - mean_o[0]
+        if is_heading:
+            err = wrap_angle(err)
+        return float(err * err / (c[0] + cov_o[0]))
+    ex, ey = z[0] - mean_o[0], z[1] - mean_o[1]
+    sa, sb, sd = _inv((c[0] + cov_o[0], c[1] + cov_o[1], c[2] + cov_o[2]))
+    return float(ex * (sa * ex + sb * ey) + ey * (sb * ex + sd * ey))
+
+
+def _gate_group(
+    values: list[tuple[float, ...]], covariances: list[tuple[float, ...]], is_heading: bool, threshold: float
+) -> tuple[dict[int, float], dict[int, float]]:
+    """Worst-first rejection inside one group of estimates of the same components.
+
+    ``values`` are k-tuples (k = 1: θ; k = 2: x, y) and ``covariances`` their packed symmetric covariances
+    (see :func:`_inv`). Leave-one-out products in information form over the other active estimates
+    (headings unwrapped around the most certain one). Ties (within 1e-6 relative) reject the earliest.
+    Scalar arithmetic: at most a handful of 1×1 and 2×2 systems per query, where numpy's per-call overhead
+    would dominate.
+
+    Returns
+    -------
+    rejected, d2s
+        Local index → d² at its rejection; local index → d² of the last complete round (survivors) or at
+        rejection.
+    """
+    rejected: dict[int, float] = {}
+    d2s: dict[int, float] = {}
+    n = len(values)
+    if n < 2:
+        return rejected, d2s
+    k = len(values[0])
+    if is_heading:
+        anchor = values[min(range(n), key=lambda i: covariances[i][0])][0]  # first of the most certain
+        values = [(anchor + wrap_angle(v[0] - anchor),) for v in values]
+    lam = [_inv(c) for c in covariances]
+    if k == 1:
+        lam_z = [(lm[0] * z[0],) for lm, z in zip(lam, values, strict=True)]
+    else:
+        lam_z = [(lm[0] * z[0] + lm[1] * z[1], lm[1] * z[0] + lm[2] * z[1]) for lm, z in zip(lam, values, strict=True)]
+    active = list(range(n))
+    round_d2: dict[int, float] = {}
+    while len(active) >= 2:
+        worst, worst_d2 = None, threshold
+        round_d2 = {}
+        for i in active:
+            mean_o, cov_o = _others(i, active, values, covariances, lam, lam_z)
+            d2 = _d2(values[i], covariances[i], mean_o, cov_o, is_heading)
+            round_d2[i] = d2
+            if d2 > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
+                worst, worst_d2 = i, d2
+        if worst is None:
+            break
+        rejected[worst] = worst_d2
+        d2s[worst] = worst_d2
+        active.remove(worst)
+        round_d2 = {}
+    d2s.update(round_d2)  # the last complete round's distances of the survivors
+    return rejected, d2s
+
+
+def _members(estimates: Sequence[Estimate], is_heading: bool) -> list[int]:
+    # components are (θ), (x, y) or (x, y, θ): position = the first two, heading = the last
+    return [i for i, e in enumerate(estimates) if (len(e.values) != 2 if is_heading else len(e.values) >= 2)]
+
+
+def _packed(estimates: Sequence[Estimate], members: list[int], is_heading: bool) -> tuple[list, list]:
+    if is_heading:
+        return [(float(estimates[i].values[-1]),) for i in members], [(float(estimates[i].covariance[-1, -1]),) for i in members]
+    vals = [(float(estimates[i].values[0]), float(estimates[i].values[1])) for i in members]
+    covs = [(float(c[0, 0]), 0.5 * float(c[0, 1] + c[1, 0]), float(c[1, 1])) for c in (estimates[i].covariance for i in members)]
+    return vals, covs
+
+
+def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999, full_pose_whole: bool = True) -> list[Verdict]:
+    """Reject the parts of reliable estimates that disagree with the others.
+
+    For each group (position, heading), every estimate measuring it is tested against the product of the
+    others in that group: if some exceed the χ² quantile of ``probability``, the one with the largest d² is
+    rejected — between equal ones (two that disagree with each other only), the *earliest*, i.e. the
+    cheaper and less exact step of the hierarchy — and the round repeats until the rest agree.
+
+    Positions are tested first. With ``full_pose_whole`` (the default), a full-pose estimate that loses its
+    position also loses its heading before the headings are tested: its x, y and θ are one measurement with
+    one cause of failure (the odometry of a robot carried away and turned), and a heading step seeded by
+    that heading would otherwise vote with it; when no other estimate measures the heading, it keeps it
+    (there is nothing to vote against). ``full_pose_whole=False`` tests the two groups independently (the
+    patent's per-axis view). The measurement that set this default is in ``docs/calibration/gating.md``.
+    """
+    accepted = [set(e.components) for e in estimates]
+    checks: list[list[Check]] = [[] for _ in estimates]
+    d2_all: list[dict[str, float]] = [{} for _ in estimates]
+    for group, comps in GROUPS.items():  # position first: a full pose that loses it is out of the heading test
+        is_heading = comps == HEADING
+        members = _members(estimates, is_heading)
+        if is_heading and full_pose_whole:
+            dropped = [i for i in members if len(estimates[i].values) == 3 and Component.X not in accepted[i]]
+            if len(dropped) == len(members):  # no other step measures the heading: the only one there is stays
+                dropped = []
+            for i in dropped:
+                accepted[i].discard(Component.THETA)
+                checks[i].append(
+                    Check.flag(
+                        WHOLE_POSE,
+                        "heading kept with its position",
+                        False,
+                        note="one measurement of the whole pose",
+                        failure="heading dropped with its position",
+                    )
+                )
+            members = [i for i in members if i not in dropped]
+        vals, covs = _packed(estimates, members, is_heading)
+        k = 1 if is_heading else 2
+        threshold = chi2_quantile(probability, k)
+        rejected, d2s = _gate_group(vals, covs, is_heading, threshold)
+        for local, i in enumerate(members):
+            if local not in d2s:
+                continue
+            d2_all[i][group] = d2s[local]
+            if local in rejected:
+                accepted[i] -= set(comps)
+            checks[i].append(
+                Check(
+                    consistency_code(group),
+                    f"{group} d² against the other steps",
+                    local not in rejected,
+                    d2s[local],
+                    threshold,
+                    Comparison.AT_MOST,
+                    Unit.SQUARED,
+                    note=f"χ² quantile, {k} dof, p = {probability:g}",
+                )
+            )
+    return [Verdict(e, tuple(c for c in FULL if c in accepted[i]), tuple(checks[i]), d2_all[i]) for i, e in enumerate(estimates)]

@@ -1,0 +1,286 @@
+"""One estimator's measurement of some pose components: :class:`Estimate` (world frame, with its typed verdicts)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+
+from factorloc._json import json_ready
+from factorloc._validate import float_array, positive_float
+from factorloc.errors import InputError
+from factorloc.geometry import Pose2, wrap_angle
+from factorloc.types.components import ALLOWED_COMPONENTS, FULL, HEADING, POSITION, Component, component_set
+from factorloc.verdicts import Check, SeedEvidence, failed, render_checks
+
+__all__ = ["Estimate"]
+
+
+def _cholesky_pivots(c: list[list[float]]) -> list[float]:
+    """The pivots ``d_i`` of the LDLᵀ factorization of a small symmetric matrix (all > 0 ⇔ positive definite).
+
+    Plain Python for k ≤ 3: a numpy call costs more than the arithmetic. The
+    factorization stops at the first pivot ≤ 0 (it is returned last).
+    """
+    k = len(c)
+    L = [[0.0] * k for _ in range(k)]
+    d: list[float] = []
+    for j in range(k):
+        dj = c[j][j] - sum(L[j][m] * L[j][m] * d[m] for m in range(j))
+        d.append(dj)
+        if not dj > 0.0:
+            break
+        for i in range(j + 1, k):
+            L[i][j] = (c[i][j] - sum(L[i][m] * L[j][m] * d[m] for m in range(j))) / dj
+    return d
+
+
+def _covariance(name: str, value: Any, k: int) -> np.ndarray:
+    cov = float_array(name, value, (k, k))
+    if (np.abs(cov - cov.T) > 1e-15 + 1e-9 * np.abs(cov.T)).any():  # np.allclose(rtol=1e-9, atol=1e-15), cheaper
+        raise InputError(f"{name} must be symmetric, got {cov.tolist()}")
+    cov = 0.5 * (cov + cov.T)
+    if not all(p > 0.0 for p in _cholesky_pivots(cov.tolist())):
+        eig = np.linalg.eigvalsh(cov)
+        raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig.tolist()}")
+    cov.setflags(write=False)
+    return cov
+
+
+# --------------------------------------------------------------------------
+# Estimate
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Estimate:
+    """One estimator's measurement of some pose components, in the world frame.
+
+    Parameters
+    ----------
+    step
+        Name of the step that made it (``"odometry"``, ``"compass"``, ``"correlation"``, ``"icp"``, …).
+    components
+        What it measures: ``("theta",)``, ``("x", "y")`` or ``("x", "y", "theta")``.
+    values
+        The measured values in the order of ``components`` (metres, radians; θ wrapped to [-π, π)).
+    covariance
+        k×k covariance of ``values`` (m², rad²), world frame. Per-axis estimates
+        (the patent's case) have a diagonal one; use :meth:`heading`,
+        :meth:`position` or :meth:`pose` to build from sigmas.
+    reliable
+        The estimator's own verdict.
+    reason
+        A human-readable reason for it. Without a ``reason``, an estimate with ``checks`` gets the
+        one rendered from its failed checks (:func:`factorloc.verdicts.render_checks`).
+    diagnostics
+        Free-form figures for people and plots: match count, peak correlation, residual, scale… Nothing in
+        the library decides on them: decisions travel as ``checks`` and ``seed``.
+    checks
+        The step's reliability rules as typed :class:`~factorloc.verdicts.Check` records, in the order they
+        apply. An estimate with a failed check cannot be ``reliable``.
+    seed
+        What seeded the step and what its data say about that seed (:class:`~factorloc.verdicts.SeedEvidence`;
+        None: the step used no seed and tested none). The gate's seed audit reads only this.
+    """
+
+    step: str
+    components: tuple[Component, ...]
+    values: np.ndarray
+    covariance: np.ndarray
+    reliable: bool = True
+    reason: str = ""
+    diagnostics: Mapping[str, Any] = field(default_factory=dict)
+    checks: tuple[Check, ...] = ()
+    seed: SeedEvidence | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.step, str) or not self.step:
+            raise InputError(f"Estimate.step must be a non-empty string, got {self.step!r}")
+        comps = component_set(self.components)
+        object.__setattr__(self, "components", comps)
+        k = len(comps)
+        values = np.array(float_array(f"Estimate({self.step}).values", self.values, (k,)))
+        if comps[-1] is Component.THETA:
+            values[-1] = wrap_angle(values[-1])
+        values.setflags(write=False)
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "covariance", _covariance(f"Estimate({self.step}).covariance", self.covariance, k))
+        object.__setattr__(self, "reliable", bool(self.reliable))
+        checks = tuple(self.checks)
+        for c in checks:
+            if not isinstance(c, Check):
+                raise InputError(f"Estimate({self.step}).checks must hold factorloc.verdicts.Check, got {type(c).__name__}")
+        if self.reliable and failed(checks):
+            raise InputError(f"Estimate({self.step}) cannot be reliable with failed checks: {render_checks(checks)}")
+        object.__setattr__(self, "checks", checks)
+        if self.seed is not None and not isinstance(self.seed, SeedEvidence):
+            raise InputError(f"Estimate({self.step}).seed must be a SeedEvidence or None, got {type(self.seed).__name__}")
+        reason = str(self.reason)
+        if not reason and not self.reliable and checks:
+            reason = render_checks(checks)
+        object.__setattr__(self, "reason", reason)
+        object.__setattr__(self, "diagnostics", MappingProxyType(dict(self.diagnostics)))
+
+    # --- builders -----------------------------------------------------------
+    @classmethod
+    def heading(cls, step: str, theta_rad: float, sigma_rad: float, **kwargs: Any) -> Estimate:
+        """A heading-only estimate θ ± σ (radians)."""
+        s = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_rad)
+        return cls(step, HEADING, [theta_rad], [[s * s]], **kwargs)
+
+    @classmethod
+    def position(
+        cls,
+        step: str,
+        x_m: float,
+        y_m: float,
+        sigma_x_m: float | None = None,
+        sigma_y_m: float | None = None,
+        *,
+        covariance: np.ndarray | None = None,
+        **kwargs: Any,
+    ) -> Estimate:
+        """A position-only estimate (world-frame x, y) from sigmas or a 2×2 covariance."""
+        if covariance is None:
+            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            covariance = np.diag([sx * sx, sy * sy])
+        return cls(step, POSITION, [x_m, y_m], covariance, **kwargs)
+
+    @classmethod
+    def pose(
+        cls,
+        step: str,
+        pose: Pose2,
+        sigma_x_m: float | None = None,
+        sigma_y_m: float | None = None,
+        sigma_theta_rad: float | None = None,
+        *,
+        covariance: np.ndarray | None = None,
+        **kwargs: Any,
+    ) -> Estimate:
+        """A full-pose estimate from per-axis sigmas or a 3×3 world-frame covariance."""
+        if covariance is None:
+            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            st = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_theta_rad)
+            covariance = np.diag([sx * sx, sy * sy, st * st])
+        return cls(step, FULL, pose.as_array(), covariance, **kwargs)
+
+    # --- accessors ------------------------------------------------------------
+    @property
+    def kind(self) -> str:
+        """``"heading"``, ``"position"`` or ``"full"``."""
+        return ALLOWED_COMPONENTS[self.components]
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        """Standard deviations of ``values`` (square roots of the covariance diagonal)."""
+        return np.sqrt(np.diag(self.covariance))
+
+    def measures(self, component: Component | str) -> bool:
+        """Whether this estimate measures ``component``."""
+        return Component(component) in self.components
+
+    def value(self, component: Component | str) -> float:
+        """The measured value of ``component`` (m or rad)."""
+        return float(self.values[self.components.index(Component(component))])
+
+    def sigma(self, component: Component | str) -> float:
+        """The standard deviation of ``component`` (m or rad)."""
+        i = self.components.index(Component(component))
+        return float(math.sqrt(self.covariance[i, i]))
+
+    @property
+    def has_cross_covariance(self) -> bool:
+        """True when a full estimate couples position and heading (non-zero x–θ or y–θ terms)."""
+        return self.kind == "full" and bool(np.any(self.covariance[:2, 2] != 0.0))
+
+    def marginal(self, components: Sequence[Component | str]) -> Estimate:
+        """The estimate restricted to ``components`` (values and covariance block)."""
+        comps = component_set(components)
+        missing = [c.value for c in comps if c not in self.components]
+        if missing:
+            raise InputError(f"Estimate({self.step}) does not measure {missing}")
+        idx = [self.components.index(c) for c in comps]
+        return Estimate(
+            self.step,
+            comps,
+            self.values[idx],
+            self.covariance[np.ix_(idx, idx)],
+            self.reliable,
+            self.reason,
+            self.diagnostics,
+            self.checks,
+            self.seed,
+        )
+
+    def with_verdict(self, reliable: bool, reason: str, checks: Sequence[Check] | None = None) -> Estimate:
+        """A copy with another reliability verdict (and, when given, other checks)."""
+        kept = self.checks if checks is None else tuple(checks)
+        return Estimate(
+            self.step, self.components, self.values, self.covariance, reliable, reason, self.diagnostics, kept, self.seed
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict (the format ``factorloc fuse`` reads)."""
+        return {
+            "step": self.step,
+            "components": [c.value for c in self.components],
+            "values": self.values.tolist(),
+            "covariance": self.covariance.tolist(),
+            "reliable": self.reliable,
+            "reason": self.reason,
+            "diagnostics": json_ready(self.diagnostics, finite=False),
+            "checks": [c.to_dict() for c in self.checks],
+            "seed": None if self.seed is None else self.seed.to_dict(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Estimate:
+        """Inverse of :meth:`to_dict`; ``sigmas`` may replace ``covariance``."""
+        if not isinstance(data, Mapping):
+            raise InputError(f"an estimate must be a JSON object, got {type(data).__name__}")
+        for key in ("step", "components", "values"):
+            if key not in data:
+                raise InputError(f"estimate is missing the field '{key}': {dict(data)!r}")
+        if "covariance" in data:
+            cov = data["covariance"]
+        elif "sigmas" in data:
+            sig = float_array(f"Estimate({data['step']}).sigmas", data["sigmas"], (len(data["values"]),))
+            if np.any(sig <= 0):
+                raise InputError(f"Estimate({data['step']}).sigmas must be > 0, got {sig.tolist()}")
+            cov = np.diag(sig**2)
+        else:
+            raise InputError(f"estimate '{data['step']}' needs 'covariance' or 'sigmas'")
+        return cls(
+            step=data["step"],
+            components=tuple(data["components"]),
+            values=data["values"],
+            covariance=cov,
+            reliable=data.get("reliable", True),
+            reason=data.get("reason", ""),
+            diagnostics=data.get("diagnostics", {}),
+            checks=tuple(Check.from_dict(c) for c in data.get("checks") or ()),
+            seed=None if data.get("seed") is None else SeedEvidence.from_dict(data["seed"]),
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Estimate):
+            return NotImplemented
+        return (
+            self.step == other.step
+            and self.components == other.components
+            and np.array_equal(self.values, other.values)
+            and np.array_equal(self.covariance, other.covariance)
+            and self.reliable == other.reliable
+            and self.reason == other.reason
+            and dict(self.diagnostics) == dict(other.diagnostics)
+            and self.checks == other.checks
+            and self.seed == other.seed
+        )
+
+    __hash__ = None  # type: ignore[assignment]
