@@ -22,7 +22,7 @@ import numpy as np
 from factorloc import Localization, Odometry, Pose2, Query, Reference, Scan, localize
 
 #: Every how many-th short local relation of each real log enters the sample.
-LASER_EVERY = 60
+LASER_EVERY = 120
 #: The odometry σ model of the relations benchmark (raw wheel odometry, honest 3σ tail).
 ODOMETRY_SIGMAS = {
     "drift_ratio": 0.2,
