@@ -1,13 +1,13 @@
 """The simulated lidar against the real laser logs: ICP residual statistics and NEES per ``bias_rmse_ratio``.
 
 For seeded scan pairs (seed 5 cm / 2° off the truth), runs the ICP step's :func:`estimate` with
-several ``IcpConfig.bias_rmse_ratio`` values and prints, over the reliable full-pose estimates: the
+several ``IcpConfig.covariance.bias_rmse_ratio`` values and prints, over the reliable full-pose estimates: the
 position error, the fit's RMSE, the autocorrelation of the point-to-line residuals along the scan
 (lags 1, 2, 5, 10 correspondences), and the position (2 dof) and heading (1 dof) NEES with the
 share outside the 99 % ellipse. Real pairs: every N-th local relation (path < 5 m) of the Intel /
 ACES logs; simulated pairs: 360° scans of the apartment within 2 m of each other, rendered by
 :func:`factorloc.sim.render_scan` with its real-lidar error model, or with white noise only.
-Used to set ``IcpConfig.bias_rmse_ratio`` and to check the simulator's error model against reality.
+Used to set ``IcpConfig.covariance.bias_rmse_ratio`` and to check the simulator's error model against reality.
 
 Usage::
 
@@ -49,7 +49,7 @@ def run_pair(ref_pts, qry_pts, true: Pose2, rng, stats):
     ref0 = prepare_reference(Reference(scan=Scan(ref_pts), T_world_reference=Pose2(0, 0, 0)))
     row = {}
     for b in RATIOS:
-        cfg = replace(ref0.config, bias_rmse_ratio=b)
+        cfg = replace(ref0.config, covariance=replace(ref0.config.covariance, bias_rmse_ratio=b))
         try:
             est = estimate(ref0, qry_pts, hyp, cfg)
         except InputError:
@@ -64,10 +64,11 @@ def run_pair(ref_pts, qry_pts, true: Pose2, rng, stats):
     d = est.diagnostics
     stats["rmse_mm"].append(1000 * d["rmse_m"])
     # residual autocorrelation along the scan: re-align to get residuals in source order
-    from factorloc.estimators.icp import _kernel
     from factorloc.registration.icp2d import align
+    from factorloc.registration.kernels import kernel_from_name
 
-    res = align(ref0.target, qry_pts, Pose2(*est.values), cfg.icp, _kernel(cfg.kernel, cfg.kernel_scale_m))
+    a = cfg.alignment
+    res = align(ref0.target, qry_pts, Pose2(*est.values), a.icp, kernel_from_name(a.kernel, a.kernel_scale_m))
     r = np.asarray(res.residuals_m)
     stats["acf"].append([acf(r, k) for k in (1, 2, 5, 10)])
 

@@ -25,7 +25,7 @@ Methods compared side by side in one run, all seeded by the same odometry:
 * ``odometry`` — the odometry alone (reliable per the odometry step's σ test);
 * ``open3d_p2p`` / ``open3d_p2plane`` — Open3D's ICP
   (:mod:`factorloc.registration.open3d_peer`), reliable when its fitness
-  reaches ``IcpConfig.min_fitness``, with the odometry's σ (it has none of its own).
+  reaches ``IcpConfig.reliability.min_fitness``, with the odometry's σ (it has none of its own).
 
 A result is *confidently wrong* when it is reliable and its position error
 exceeds the 3σ ellipse (squared Mahalanobis distance above the 2-DoF χ²
@@ -196,7 +196,7 @@ def relations_config(base: Config | None = None) -> Config:
     """The configuration ``ours`` runs with on the laser logs.
 
     ``base`` (default :class:`Config`) with two changes. (It used to also
-    raise ``icp.bias_rmse_ratio`` to 0.75 for real laser scans; that is now
+    raise ``icp.covariance.bias_rmse_ratio`` to 0.75 for real laser scans; that is now
     the library default, see :class:`~factorloc.estimators.icp.IcpConfig`.)
 
     * ``odometry.max_sigma_position_m = 1.0``: with the :class:`OdometryModel`
@@ -300,6 +300,9 @@ def relations_benchmark(
                 diag = {
                     "icp_status": icp_rep.status.value,
                     "icp_reason": icp_rep.reason,
+                    "icp_failed_checks": ()
+                    if icp_rep.estimate is None
+                    else tuple(c.code for c in icp_rep.estimate.checks if not c.passed),
                     "icp_seconds": icp_seconds,
                     "localize_seconds": dt,
                 }
@@ -361,7 +364,7 @@ def relations_benchmark(
             else:
                 method = "point_to_point" if m == "open3d_p2p" else "point_to_plane"
                 t0 = time.perf_counter()
-                normals = prepare_target(ref_scan.points_m, icp_cfg.icp).normals if method == "point_to_plane" else None
+                normals = prepare_target(ref_scan.points_m, icp_cfg.alignment.icp).normals if method == "point_to_plane" else None
                 res = open3d_icp(
                     ref_scan.points_m,
                     qry_scan.points_m,
@@ -372,7 +375,7 @@ def relations_benchmark(
                 )
                 dt = time.perf_counter() - t0
                 est = res.T_target_source
-                reliable = res.fitness >= icp_cfg.min_fitness
+                reliable = res.fitness >= icp_cfg.reliability.min_fitness
                 et, er = _errors(true, est)
                 wrong, d2 = _wrong(true, est, odom_cov)
                 out.append(
@@ -427,26 +430,6 @@ def summarize(results: Sequence[RelationResult], dataset: str = "") -> list[dict
     return rows
 
 
-_RULES = (
-    ("ambiguous", "ambiguous"),
-    ("degenerate", "degenerate geometry"),
-    ("free space", "seen-free space"),
-    ("score", "score (fitness"),
-    ("fitness", "fitness "),
-    ("σ", "σ"),
-    ("rmse", "rmse "),
-    ("chamfer", "chamfer "),
-    ("seed inconsistent", "inconsistent with the"),
-    ("contradicts seed", "contradicts the"),
-)
-
-
-def _first_rule(reason: str) -> str:
-    """The rule named first in an ICP verdict's reason (its checks are listed in order), or "other"."""
-    hits = [(reason.find(key), name) for name, key in _RULES if key in reason]
-    return min(hits)[1] if hits else "other"
-
-
 def unrecovered_breakdown(
     results: Sequence[RelationResult], subset: str = "loop", tolerance: tuple[float, float] = (0.1, 1.0)
 ) -> dict[str, int]:
@@ -456,8 +439,8 @@ def unrecovered_breakdown(
     Each unrecovered one is counted under one key:
 
     * ``icp_correct_rejected: <rule>`` — the ICP step's own pose was within the tolerance but it called it
-      unreliable; ``<rule>`` is the first test its reason names (ambiguous, degenerate, free space, score,
-      fitness, σ, …);
+      unreliable; ``<rule>`` is the code of its first failed check (``icp.score``, ``icp.constraint``, …;
+      the rules apply in the order of :data:`factorloc.estimators.icp.rules.RULES`);
     * ``icp_correct_gated`` — the ICP pose was within the tolerance and reliable, yet not what the pipeline
       returned (the consistency gate or the seed audit);
     * ``icp_wrong_flagged`` — the ICP pose was off and the result is unreliable (flagged, as it should be);
@@ -479,7 +462,7 @@ def unrecovered_breakdown(
             d.get("icp_error_translation_m", math.inf) < tolerance[0] and d.get("icp_error_rotation_deg", math.inf) < tolerance[1]
         )
         if icp_ok and not d.get("icp_reliable", False):
-            key = f"icp_correct_rejected: {_first_rule(str(d.get('icp_reason', '')))}"
+            key = f"icp_correct_rejected: {(d.get('icp_failed_checks') or ('other',))[0]}"
         elif icp_ok:
             key = "icp_correct_gated"
         elif not r.reliable:
