@@ -9,6 +9,12 @@ Usage::
     .venv/bin/python benchmarks/bench_icp.py --sim 100       # + 100 simulated queries for the NEES figures
     .venv/bin/python benchmarks/bench_icp.py --datasets "" --kidnapped 30 --kidnapped-seeds 1,2,3
                                                              # kidnapped-robot recovery through localize()
+    .venv/bin/python benchmarks/bench_icp.py --folds         # leave-one-log-out over Intel, ACES, MIT CSAIL
+    .venv/bin/python benchmarks/bench_icp.py --folds --candidates default,other --every 5
+
+``--folds`` evaluates each candidate setting of :data:`CANDIDATES` on every fold (fit on two logs, report on
+the third; :func:`factorloc.evaluation.folds.relations_folds`) and names the one that does best on its worst
+held-out fold (the committed default must be it).
 """
 
 from __future__ import annotations
@@ -17,20 +23,80 @@ import argparse
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from factorloc.config import Config
 from factorloc.datasets.rosbag import read_laser_log
+from factorloc.evaluation.folds import (
+    LOGS,
+    Candidate,
+    best_on_worst_fold,
+    format_folds,
+    load_laser_datasets,
+    relations_folds,
+)
 from factorloc.evaluation.relations import (
     format_table,
     read_relations,
     relations_benchmark,
+    relations_config,
     summarize,
     unrecovered_breakdown,
 )
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
+
+
+def _with_covariance(config: Config, **fields: float) -> Config:
+    """``config`` with fields of its ICP covariance group replaced."""
+    icp = config.icp
+    return replace(config, icp=replace(icp, covariance=replace(icp.covariance, **fields)))
+
+
+def _fit_inflation(train: dict, config: Config) -> Config:
+    """The inflation of the ICP covariance that gives the training logs' reliable ICP estimates a mean position
+    NEES of 2 (their χ² mean), pooled over the training logs."""
+    nees = [r.nees_position for res in train.values() for r in res if r.method == "ours_icp" and r.reliable]
+    nees = [v for v in nees if math.isfinite(v)]
+    factor = float(np.mean(nees)) / 2.0
+    return _with_covariance(config, inflation=config.icp.covariance.inflation * factor)
+
+
+def candidates() -> dict[str, Candidate]:
+    """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
+    floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
+    training logs."""
+    base = relations_config()
+    out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
+    for floor_mm in (10, 15, 20):
+        for k in (0.5, 0.75):
+            name = f"floor{floor_mm}" + ("" if k == 0.75 else f"_k{k}")
+            cfg = _with_covariance(base, sigma_floor_m=floor_mm / 1000, sigma_floor_rad=0.004, bias_rmse_ratio=k)
+            out[name] = Candidate(name, cfg)
+    return out
+
+
+def folds(data: Path, names: list[str], every: int, chosen: list[str], json_path: Path | None) -> None:
+    """Every chosen candidate on every leave-one-log-out fold; the fold table and the best on the worst fold."""
+    known = candidates()
+    unknown = [c for c in chosen if c not in known]
+    if unknown:
+        raise SystemExit(f"unknown candidate(s) {unknown}; known: {list(known)}")
+    t0 = time.perf_counter()
+    datasets = load_laser_datasets(data, names, every=every)
+    reports = relations_folds(
+        datasets, [known[c] for c in chosen], progress=lambda line: print(f"[{time.perf_counter() - t0:6.0f} s] {line}")
+    )
+    print(format_folds(reports))
+    best = best_on_worst_fold(reports)
+    print(f"best on the worst held-out fold: {best.candidate} (worst shortfall {best.worst_shortfall:.3f})")
+    for r in reports:
+        print(f"  {r.candidate}: shortfall per fold " + ", ".join(f"{f.dataset} {f.shortfall():.3f}" for f in r.folds))
+    if json_path is not None:
+        json_path.write_text("[" + ",\n".join(r.to_json() for r in reports) + "]\n")
 
 
 def _row(rows: list[dict], method: str, subset: str) -> dict:
@@ -229,7 +295,13 @@ def main() -> None:
     ap.add_argument("--kidnapped", type=int, default=0, help="queries per simulated kidnapped scenario (0 = skip)")
     ap.add_argument("--kidnapped-seeds", default="1,2,3")
     ap.add_argument("--json", type=Path, default=None, help="write the table rows here")
+    ap.add_argument("--folds", action="store_true", help="leave-one-log-out over --datasets (default: all three logs)")
+    ap.add_argument("--candidates", default="default", help="comma-separated candidate settings for --folds")
     args = ap.parse_args()
+    if args.folds:
+        names = [d for d in args.datasets.split(",") if d] if args.datasets != "intel,aces" else list(LOGS)
+        folds(args.data, names, args.every, [c for c in args.candidates.split(",") if c], args.json)
+        return
     all_rows: list[dict] = []
     for name in [d for d in args.datasets.split(",") if d]:
         log = read_laser_log(args.data / f"{name}.sort.bag")

@@ -104,7 +104,7 @@ class AlignmentConfig:
 class CovarianceConfig:
     """The covariance of an ICP solution (:mod:`factorloc.estimators.icp.covariance`).
 
-    ``Σ = scale · Σ_white + D Σ_bias D + diag(f_m², f_m², f_rad²)``.
+    ``Σ = inflation · (scale · Σ_white + D Σ_bias D) + diag(f_m², f_m², f_rad²)``.
 
     Parameters
     ----------
@@ -113,6 +113,8 @@ class CovarianceConfig:
         Baerveldt 2003) or ``"chamfer"`` (the patent's isotropic σ from the Chamfer distance).
     scale
         Factor on ``Σ_white``.
+    inflation
+        Factor on the sum of the two terms (before the floors).
     bias_rmse_ratio
         σ_b of the correlated per-point error term ``Σ_bias = σ_b² (H/Σw)⁻¹``
         (:func:`~factorloc.registration.covariance.bias_covariance`) as a multiple of the fit's inlier RMSE,
@@ -124,13 +126,15 @@ class CovarianceConfig:
     bias_fitness_ref
         When > 0, σ_b is multiplied by ``max(1, bias_fitness_ref / fitness)`` (0: off).
     sigma_floor_m, sigma_floor_rad
-        Floors ``f`` added in quadrature.
+        Floors ``f`` added in quadrature: the error no statistic of the pair shows (the ground truth's own error,
+        the sensor's motion during the sweep, its mounting).
     chamfer_scale
         σ = ``chamfer_scale`` · Chamfer distance for the ``"chamfer"`` model.
     """
 
     model: str = "censi"
     scale: float = 1.0
+    inflation: float = 1.0
     bias_rmse_ratio: float = 0.75
     bias_rmse_ratio_cloud: float = 0.2
     bias_heading_scale: float = 0.85
@@ -142,7 +146,7 @@ class CovarianceConfig:
     def __post_init__(self) -> None:
         if self.model not in COVARIANCE_MODELS:
             raise ConfigError(f"icp.covariance.model must be one of {COVARIANCE_MODELS}, got {self.model!r}")
-        _positive("covariance", self, "scale", "chamfer_scale", "bias_heading_scale")
+        _positive("covariance", self, "scale", "inflation", "chamfer_scale", "bias_heading_scale")
         _non_negative(
             "covariance", self, "bias_rmse_ratio", "bias_rmse_ratio_cloud", "bias_fitness_ref", "sigma_floor_m", "sigma_floor_rad"
         )

@@ -1,6 +1,6 @@
 """The covariance of an ICP solution, and the geometry measures derived from its Hessian.
 
-``Σ = s·Σ_white + D Σ_bias D + diag(f_m², f_m², f_rad²)`` (reference frame; m², m·rad, rad²):
+``Σ = a·(s·Σ_white + D Σ_bias D) + diag(f_m², f_m², f_rad²)`` (reference frame; m², m·rad, rad²):
 
 * ``Σ_white`` — independent point noise: Censi's closed form with the residual sandwich
   (:func:`~factorloc.registration.covariance.censi_covariance`; A. Censi, "An accurate closed-form estimate of
@@ -9,7 +9,8 @@
 * ``Σ_bias = σ_b² (H/Σwᵢ)⁻¹`` — an error shared by the points (a lidar's per-surface range offset, a wall that
   is not straight), which averaging over points does not shrink
   (:func:`~factorloc.registration.covariance.bias_covariance`); ``σ_b`` proportional to the fit's RMSE;
-* ``D = diag(1, 1, k)`` scales that term's heading σ, ``f`` are floors.
+* ``D = diag(1, 1, k)`` scales that term's heading σ, ``a`` is an inflation, ``f`` are floors (what no
+  statistic of the pair shows: the ground truth's own error, the sensor's motion during the sweep).
 
 Along a direction the scan does not constrain (one wall, a corridor), :func:`unconstrained_along` gives the
 position :data:`UNCONSTRAINED_SIGMA_M`.
@@ -84,6 +85,8 @@ def covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
         cov = c.scale * cov
         if sb > 0.0:
             cov = cov + scale_heading(bias_covariance(result, sb), k)
+    if c.inflation != 1.0:
+        cov = c.inflation * cov
     cov = cov + np.diag([c.sigma_floor_m**2, c.sigma_floor_m**2, c.sigma_floor_rad**2])
     return 0.5 * (cov + cov.T)
 
