@@ -65,23 +65,70 @@ def _fit_inflation(train: dict, config: Config) -> Config:
     return _with_covariance(config, inflation=config.icp.covariance.inflation * factor)
 
 
+#: What ``--candidates ablation`` leaves out, one at a time: rule and waiver codes (``IcpConfig.ablate``) and the
+#: flow switches of the configuration.
+ABLATIONS: tuple[str, ...] = (
+    "icp.constraint",
+    "icp.free_space",
+    "icp.score",
+    "icp.inliers",
+    "icp.fitness",
+    "icp.global.overlap",
+    "icp.rmse",
+    "icp.chamfer",
+    "icp.sigma_position",
+    "icp.sigma_heading",
+    "icp.global.seed_refuted",
+    "icp.global.ambiguity",
+    "icp.global.ambiguity.overturn",
+    "icp.seed.consistency",
+    "icp.waiver.dominant_degenerate",
+    "icp.waiver.low_but_clear",
+    "icp.waiver.overlap_supported",
+    "icp.degenerate_skips_global",
+    "icp.global.max_shift",
+    "icp.seed.free_space",
+    "icp.seed.fits_near",
+    "icp.seed.stays_near",
+    "global_init.ignore_degenerate_rivals",
+    "global_init.widen",
+    "seed.across_walls",
+)
+
+
+def _ablated(config: Config, what: str) -> Config:
+    """``config`` without one rule (a code) or with one flow switch (``group.field``) off."""
+    icp = config.icp
+    if what.startswith("icp."):
+        return replace(config, icp=replace(icp, ablate=(*icp.ablate, what)))
+    group, name = what.split(".")
+    return replace(config, icp=replace(icp, **{group: replace(getattr(icp, group), **{name: False})}))
+
+
 def candidates() -> dict[str, Candidate]:
     """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
     floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
     training logs."""
     base = relations_config()
     out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
-    for floor_mm in (10, 15, 20):
+    for floor_mm in (7.5, 10, 12.5, 15, 20):
         for k in (0.5, 0.75):
-            name = f"floor{floor_mm}" + ("" if k == 0.75 else f"_k{k}")
-            cfg = _with_covariance(base, sigma_floor_m=floor_mm / 1000, sigma_floor_rad=0.004, bias_rmse_ratio=k)
-            out[name] = Candidate(name, cfg)
+            for p in (1.0, 1.25, 1.5):
+                name = f"floor{floor_mm:g}" + ("" if k == 0.75 else f"_k{k}") + ("" if p == 1.0 else f"_p{p}")
+                cfg = _with_covariance(
+                    base, sigma_floor_m=floor_mm / 1000, sigma_floor_rad=0.004, bias_rmse_ratio=k, weak_exponent=p
+                )
+                out[name] = Candidate(name, cfg)
+    for what in ABLATIONS:
+        out[f"-{what}"] = Candidate(f"-{what}", _ablated(base, what))
     return out
 
 
 def folds(data: Path, names: list[str], every: int, chosen: list[str], json_path: Path | None) -> None:
     """Every chosen candidate on every leave-one-log-out fold; the fold table and the best on the worst fold."""
     known = candidates()
+    if chosen == ["ablation"]:
+        chosen = ["default", *(f"-{w}" for w in ABLATIONS)]
     unknown = [c for c in chosen if c not in known]
     if unknown:
         raise SystemExit(f"unknown candidate(s) {unknown}; known: {list(known)}")

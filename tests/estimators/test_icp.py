@@ -347,7 +347,7 @@ def _laser_pair(seed: int) -> tuple[Reference, np.ndarray, Pose2, Hypotheses]:
 
 def test_correlated_term_heading_scale_shrinks_only_its_heading_sigma() -> None:
     ref, pts, _, hyp = _laser_pair(3)
-    cfg = IcpConfig()
+    cfg = _cov(IcpConfig(), sigma_floor_m=0.0, sigma_floor_rad=0.0)  # the term alone, without the floors
     prep = prepare_reference(ref, cfg)
     full = estimate(prep, pts, hyp, _cov(cfg, bias_heading_scale=1.0)).covariance
     scaled = estimate(prep, pts, hyp, cfg).covariance  # default 0.85

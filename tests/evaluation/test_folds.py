@@ -37,6 +37,8 @@ def _figures(**kw: float) -> FoldFigures:
         local_error_odometry_cm=3.0,
         loops_recovered=0.8,
         loops_unrecovered_flagged=1.0,
+        recovered_all=0.9,
+        flagged_all=0.05,
         icp_reliable_local=1.0,
         icp_nees_position=2.0,
         icp_nees_n=100,
@@ -47,13 +49,15 @@ def _figures(**kw: float) -> FoldFigures:
     return FoldFigures(**base)
 
 
-def test_a_fold_that_meets_every_target_has_no_shortfall_and_each_miss_counts_at_most_one() -> None:
+def test_a_fold_that_meets_every_target_has_no_shortfall_and_misses_are_weighted_and_capped() -> None:
     ok = _figures()
     assert ok.misses() == () and ok.shortfall() == 0.0
     bad = _figures(confidently_wrong_all=0.015, icp_nees_position=0.75, ms_median=30.0)
     assert set(bad.misses()) == {"confidently_wrong_all", "icp_nees_position_low", "time_ratio_open3d"}
-    # 0.5 for the c.w. rate (1.5 % against < 1 %), 0.5 for the NEES (0.75 against ≥ 1.5), capped at 1 for the time
-    assert bad.shortfall() == pytest.approx(0.5 + 0.5 + 1.0)
+    # 2 × 0.5 for the c.w. rate (1.5 % against < 1 %: a confidently wrong result costs double), 0.5 for the NEES
+    # (0.75 against ≥ 1.5); the time is reported but does not choose between settings
+    assert bad.shortfall() == pytest.approx(2 * 0.5 + 0.5)
+    assert _figures(icp_nees_position=30.0).shortfall() == pytest.approx(1.0)  # a miss is capped at 1
     assert _figures(n_loop=0, confidently_wrong_loop=math.nan).misses() == ()  # no loops: no loop target
 
 
@@ -82,6 +86,7 @@ def test_figures_of_a_run_compare_ours_with_the_better_open3d_and_the_odometry()
     assert f.local_error_cm == pytest.approx(2.0) and f.local_error_open3d_cm == pytest.approx(4.0)  # p2p 4.0, p2plane 4.0
     assert f.local_error_ratio_odometry == pytest.approx(0.5)
     assert f.loops_recovered == 0.5 and f.loops_unrecovered_flagged == 1.0
+    assert f.recovered_all == 0.75 and f.flagged_all == 0.25
     assert f.icp_nees_position == pytest.approx(2.0) and f.icp_nees_n == 2  # reliable ICP estimates only
     assert f.time_ratio_open3d == pytest.approx(1.5 / 2.0)  # medians: ours (2, 4, 1, 1 ms) vs p2plane (1, 3 ms)
     with pytest.raises(InputError):

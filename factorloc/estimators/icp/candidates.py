@@ -29,7 +29,7 @@ from factorloc.estimators.icp.covariance import (
 )
 from factorloc.estimators.icp.reference import IcpReference
 from factorloc.estimators.icp.rules import Contest, Evidence, Rivalry, SeedFit, judge, passed
-from factorloc.geometry import Pose2, rotate_covariance
+from factorloc.geometry import Pose2
 from factorloc.registration.global_search import search
 from factorloc.registration.icp2d import IcpResult, align
 from factorloc.registration.kernels import RobustKernel, kernel_from_name
@@ -165,23 +165,29 @@ def mahalanobis2(e: np.ndarray, s: np.ndarray) -> float:
     return (s11 * ex * ex - 2.0 * s01 * ex * ey + s00 * ey * ey) / (s00 * s11 - s01 * s01)
 
 
-def seed_distance2(prepared: IcpReference, T_reference_query: Pose2, cov: np.ndarray, seeds: Seeds) -> tuple[float, np.ndarray]:
+def seed_distance2(prepared: IcpReference, T_reference_query: Pose2, cov: np.ndarray, seeds: Seeds) -> tuple[float, float]:
     """Squared Mahalanobis distance of a solution's position from the position seed (ICP and seed covariances
-    summed, world frame), and the world-frame offset (m)."""
-    pos = seeds.position
+    summed, world frame), and the distance (m). Plain floats: 2×2 numpy calls cost more than the arithmetic."""
+    x, y, sx, sy, _ = seeds.position
     T_wr = prepared.T_world_reference
-    T = T_wr * T_reference_query
-    e = np.array([T.x - pos[0], T.y - pos[1]])
-    s = rotate_covariance(cov, T_wr.theta)[:2, :2] + np.diag([pos[2] ** 2, pos[3] ** 2])
-    return mahalanobis2(e, s), e
+    c, s = math.cos(T_wr.theta), math.sin(T_wr.theta)
+    t = T_reference_query
+    ex = T_wr.x + c * t.x - s * t.y - x
+    ey = T_wr.y + s * t.x + c * t.y - y
+    a, b, d = float(cov[0, 0]), 0.5 * (float(cov[0, 1]) + float(cov[1, 0])), float(cov[1, 1])
+    s00 = c * c * a - 2.0 * c * s * b + s * s * d + sx * sx
+    s01 = c * s * (a - d) + (c * c - s * s) * b
+    s11 = s * s * a + 2.0 * c * s * b + c * c * d + sy * sy
+    d2 = (s11 * ex * ex - 2.0 * s01 * ex * ey + s00 * ey * ey) / (s00 * s11 - s01 * s01)
+    return d2, math.hypot(ex, ey)
 
 
 def seed_fit(prepared: IcpReference, sol: Solution, seeds: Seeds, config: IcpConfig) -> SeedFit:
     """A seeded solution against its position seed (see :class:`~factorloc.estimators.icp.rules.SeedFit`)."""
     pos = seeds.position
-    d2, e = seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)
+    d2, dist = seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)
     s = config.seed
-    jump = float(np.hypot(*e)) > s.jump_margin_m + 3.0 * max(pos[2], pos[3])
+    jump = dist > s.jump_margin_m + 3.0 * max(pos[2], pos[3])
     return SeedFit(pos[4], d2, chi2_2dof(s.consistency_probability), jump or weak(sol.strength, s.check_max_constraint))
 
 
@@ -201,20 +207,16 @@ def _seeded_gate(config: IcpConfig, points: np.ndarray, seeds: Seeds) -> float:
 
 
 def seeded_attempt(prepared: IcpReference, query: QueryScan, seeds: Seeds, config: IcpConfig) -> Solution:
-    """ICP from the seeds, judged by the rules (the free-space test only once the cheaper ones pass)."""
+    """ICP from the seeds, its free-space violation, judged by the rules (the stages that apply to every solution;
+    the seed-consistency stage is the caller's, once no other solution replaces this one)."""
     pos, head = seeds.position, seeds.heading
     pts = query.points_m
     T_seed = prepared.T_reference_world * Pose2(pos[0], pos[1], head[0])
     gate = _seeded_gate(config, pts, seeds)
     result = align(prepared.target, pts, T_seed, config.alignment.icp, kernel(config), max_correspondence_m=gate)
     cov = covariance(result, config)
-    strength = constraint_strength(result)
-    ev = evidence(result, cov, strength, math.nan)
-    checks = judge(ev, config)
-    if passed(checks):
-        ev = replace(ev, violation=query.violation(prepared, result.T_target_source))
-        checks = judge(ev, config)
-    return Solution(result, cov, ev, checks, f"seeded by {pos[4]}/{head[2]}")
+    ev = evidence(result, cov, constraint_strength(result), query.violation(prepared, result.T_target_source))
+    return Solution(result, cov, ev, judge(ev, config), f"seeded by {pos[4]}/{head[2]}")
 
 
 def with_violation(sol: Solution, prepared: IcpReference, query: QueryScan) -> Solution:
@@ -265,7 +267,7 @@ def _search_window(
     for c in cands[: g.refine]:
         r = align(prepared.target, query.points_m, c.T_reference_query, config.alignment.global_icp, kernel(config))
         shift = c.T_reference_query.between(r.T_target_source)
-        if math.hypot(shift.x, shift.y) > g.max_shift_m:
+        if math.hypot(shift.x, shift.y) > g.max_shift_m and "icp.global.max_shift" not in config.ablate:
             # the refinement left the candidate's basin (slid along a wall, or onto another place)
             continue
         v = query.violation(prepared, r.T_target_source)

@@ -125,6 +125,11 @@ class CovarianceConfig:
         ``D = diag(1, 1, k)``: the heading σ of the correlated term times ``k``.
     bias_fitness_ref
         When > 0, σ_b is multiplied by ``max(1, bias_fitness_ref / fitness)`` (0: off).
+    weak_exponent
+        ``p``: along the weakest direction of the position (the smallest eigenvalue λ of the normal scatter,
+        :func:`~factorloc.estimators.icp.constraint_strength`) the correlated term's variance is ``σ_b² / λ^p``
+        instead of ``σ_b² / λ`` (1: off). A direction few features constrain is where a seeded ICP stays near its
+        seed: its estimate there is partly the seed's, and a fusion with that seed must not count it twice.
     sigma_floor_m, sigma_floor_rad
         Floors ``f`` added in quadrature: the error no statistic of the pair shows (the ground truth's own error,
         the sensor's motion during the sweep, its mounting).
@@ -139,6 +144,7 @@ class CovarianceConfig:
     bias_rmse_ratio_cloud: float = 0.2
     bias_heading_scale: float = 0.85
     bias_fitness_ref: float = 0.0
+    weak_exponent: float = 1.0
     sigma_floor_m: float = 0.001
     sigma_floor_rad: float = 0.001
     chamfer_scale: float = 0.5
@@ -147,6 +153,8 @@ class CovarianceConfig:
         if self.model not in COVARIANCE_MODELS:
             raise ConfigError(f"icp.covariance.model must be one of {COVARIANCE_MODELS}, got {self.model!r}")
         _positive("covariance", self, "scale", "inflation", "chamfer_scale", "bias_heading_scale")
+        if not 1.0 <= self.weak_exponent <= 3.0:
+            raise ConfigError(f"icp.covariance.weak_exponent must be in [1, 3], got {self.weak_exponent!r}")
         _non_negative(
             "covariance", self, "bias_rmse_ratio", "bias_rmse_ratio_cloud", "bias_fitness_ref", "sigma_floor_m", "sigma_floor_rad"
         )
@@ -335,6 +343,10 @@ class IcpConfig:
         How a 2D scan is cut out of a 3D cloud (query and reference).
     alignment, covariance, reliability, seed, global_init
         The groups above.
+    ablate
+        Codes of rules (``icp.<rule>``, :mod:`factorloc.estimators.icp.rules`) and waivers (``icp.waiver.*``)
+        left out: for measuring what each buys (the leave-one-rule-out table of ``docs/calibration/icp.md``);
+        empty in use.
     """
 
     enabled: bool = True
@@ -344,8 +356,13 @@ class IcpConfig:
     reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
     seed: SeedConfig = field(default_factory=SeedConfig)
     global_init: GlobalInitConfig = field(default_factory=GlobalInitConfig)
+    ablate: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "ablate", tuple(self.ablate))
+        bad = [c for c in self.ablate if not (isinstance(c, str) and c.startswith("icp."))]
+        if bad:
+            raise ConfigError(f"icp.ablate must hold rule codes 'icp.<rule>', got {bad!r}")
         for name, kind in (
             ("scan", ScanExtraction),
             ("alignment", AlignmentConfig),

@@ -85,10 +85,35 @@ def covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
         cov = c.scale * cov
         if sb > 0.0:
             cov = cov + scale_heading(bias_covariance(result, sb), k)
+    if c.weak_exponent != 1.0 and sb > 0.0:
+        cov = cov + _weak_direction(result, sb, c.weak_exponent)
     if c.inflation != 1.0:
         cov = c.inflation * cov
     cov = cov + np.diag([c.sigma_floor_m**2, c.sigma_floor_m**2, c.sigma_floor_rad**2])
     return 0.5 * (cov + cov.T)
+
+
+#: Smallest constraint strength the weak-direction term divides by (below it the geometry is degenerate and the
+#: position is unknown along the walls anyway, :func:`unconstrained_along`).
+_WEAK_FLOOR = 1e-3
+
+
+def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
+    """The extra variance ``σ_b² (λ^-p − λ^-1) v vᵀ`` along the weakest position direction ``v`` (eigenvalue λ of
+    the normal scatter ``H_pos / Σw``), 3×3 with zeros outside the position block."""
+    w = result.weights
+    out = np.zeros((3, 3))
+    sw = float(w.sum()) if len(w) >= 3 else 0.0
+    if not sw > 0.0:
+        return out
+    h = result.hessian
+    a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
+    lam = max(0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b), _WEAK_FLOOR)
+    v = np.array([b, lam - a]) if abs(lam - a) >= abs(lam - c) else np.array([lam - c, b])
+    n = float(np.hypot(v[0], v[1]))
+    v = np.array([1.0, 0.0]) if n == 0.0 else v / n
+    out[:2, :2] = sigma_b**2 * (lam**-p - 1.0 / lam) * np.outer(v, v)
+    return out
 
 
 @lru_cache(maxsize=8)

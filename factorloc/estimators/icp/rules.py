@@ -99,6 +99,21 @@ class Evidence:
 Rule = Callable[[Evidence, IcpConfig], "Check | None"]
 
 
+def _rule(code: str) -> Callable[[Rule], Rule]:
+    """Name a rule by the code of the checks it returns (``config.ablate`` leaves it out by that code)."""
+
+    def mark(fn: Rule) -> Rule:
+        fn.code = code  # type: ignore[attr-defined]
+        return fn
+
+    return mark
+
+
+def _waiver(code: str, config: IcpConfig) -> bool:
+    """Whether the waiver ``code`` may apply (not left out by ``config.ablate``)."""
+    return code not in config.ablate
+
+
 # --------------------------------------------------------------------------
 # waivers of a global solution without a position seed (a loop closure, a robot without odometry)
 # --------------------------------------------------------------------------
@@ -106,7 +121,12 @@ def _dominates_degenerate(ev: Evidence, config: IcpConfig) -> bool:
     """Degenerate, but explaining nearly the whole scan and dominating every distinct rival."""
     g = config.global_init
     r = ev.rivalry
-    return r is not None and r.ratio < g.degenerate_ratio and ev.score(config) >= g.degenerate_min_score
+    return (
+        _waiver("icp.waiver.dominant_degenerate", config)
+        and r is not None
+        and r.ratio < g.degenerate_ratio
+        and ev.score(config) >= g.degenerate_min_score
+    )
 
 
 def _low_but_clear(ev: Evidence, config: IcpConfig) -> bool:
@@ -114,7 +134,8 @@ def _low_but_clear(ev: Evidence, config: IcpConfig) -> bool:
     g = config.global_init
     r = ev.rivalry
     return (
-        r is not None
+        _waiver("icp.waiver.low_but_clear", config)
+        and r is not None
         and not weak(ev.strength, config.reliability.min_constraint)
         and r.ratio < g.low_score_ratio
         and ev.score(config) >= g.low_min_score
@@ -126,7 +147,8 @@ def _overlap_supported(ev: Evidence, config: IcpConfig) -> bool:
     g = config.global_init
     r = ev.rivalry
     return (
-        r is not None
+        _waiver("icp.waiver.overlap_supported", config)
+        and r is not None
         and not weak(ev.strength, config.reliability.min_constraint)
         and r.overlap >= g.overlap_min_fitness
         and r.ratio < g.overlap_rival_ratio
@@ -138,6 +160,7 @@ def _overlap_supported(ev: Evidence, config: IcpConfig) -> bool:
 # --------------------------------------------------------------------------
 # stage 1: every solution
 # --------------------------------------------------------------------------
+@_rule("icp.constraint")
 def constraint(ev: Evidence, config: IcpConfig) -> Check:
     """The scan constrains every direction: the smallest eigenvalue of the normal scatter reaches ``min_constraint``."""
     c = Check.at_least(
@@ -153,6 +176,7 @@ def constraint(ev: Evidence, config: IcpConfig) -> Check:
     return c
 
 
+@_rule("icp.free_space")
 def free_space(ev: Evidence, config: IcpConfig) -> Check | None:
     """At most ``max_violation`` of either scan lies in space the other's sensor saw empty."""
     if math.isnan(ev.violation):
@@ -162,6 +186,7 @@ def free_space(ev: Evidence, config: IcpConfig) -> Check | None:
     )
 
 
+@_rule("icp.score")
 def score(ev: Evidence, config: IcpConfig) -> Check:
     """The score ``fitness − violation_weight · violation`` reaches ``min_score``."""
     c = Check.at_least("icp.score", "score (fitness − violation)", ev.score(config), config.reliability.min_score)
@@ -172,11 +197,13 @@ def score(ev: Evidence, config: IcpConfig) -> Check:
     return c
 
 
+@_rule("icp.inliers")
 def inliers(ev: Evidence, config: IcpConfig) -> Check:
     """At least ``min_inliers`` correspondences at the solution."""
     return Check.at_least("icp.inliers", "correspondences", ev.n_inliers, config.reliability.min_inliers, Unit.COUNT)
 
 
+@_rule("icp.fitness")
 def fitness(ev: Evidence, config: IcpConfig) -> Check:
     """The fitness reaches ``min_fitness``."""
     c = Check.at_least("icp.fitness", "fitness", ev.fitness, config.reliability.min_fitness)
@@ -185,6 +212,7 @@ def fitness(ev: Evidence, config: IcpConfig) -> Check:
     return c
 
 
+@_rule("icp.global.overlap")
 def overlap_ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
     """A global solution without a position seed that has a comparable rival explains its overlap well."""
     g = config.global_init
@@ -200,16 +228,19 @@ def overlap_ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
     )
 
 
+@_rule("icp.rmse")
 def rmse(ev: Evidence, config: IcpConfig) -> Check:
     """The inlier RMSE is at most ``max_rmse_m``."""
     return Check.at_most("icp.rmse", "rmse", ev.rmse_m, config.reliability.max_rmse_m, Unit.METRE)
 
 
+@_rule("icp.chamfer")
 def chamfer(ev: Evidence, config: IcpConfig) -> Check:
     """The truncated Chamfer distance is at most ``max_chamfer_m``."""
     return Check.at_most("icp.chamfer", "chamfer", ev.chamfer_m, config.reliability.max_chamfer_m, Unit.METRE)
 
 
+@_rule("icp.sigma_position")
 def sigma_position(ev: Evidence, config: IcpConfig) -> Check:
     """The largest position σ is at most ``max_sigma_position_m``."""
     return Check.at_most(
@@ -217,6 +248,7 @@ def sigma_position(ev: Evidence, config: IcpConfig) -> Check:
     )
 
 
+@_rule("icp.sigma_heading")
 def sigma_heading(ev: Evidence, config: IcpConfig) -> Check:
     """The heading σ is at most ``max_sigma_heading_rad``."""
     return Check.at_most("icp.sigma_heading", "σθ", ev.sigma_heading_rad, config.reliability.max_sigma_heading_rad, Unit.RADIAN)
@@ -225,6 +257,7 @@ def sigma_heading(ev: Evidence, config: IcpConfig) -> Check:
 # --------------------------------------------------------------------------
 # stage 2: a global solution among the others
 # --------------------------------------------------------------------------
+@_rule("icp.global.seed_refuted")
 def seed_refuted(ev: Evidence, config: IcpConfig) -> Check | None:
     """A global solution outside the region of a reliable position seed overturns it only when the seed's own
     alignment put more than ``max_violation`` of the scan into seen-free space (the scan refutes it)."""
@@ -244,6 +277,7 @@ def seed_refuted(ev: Evidence, config: IcpConfig) -> Check | None:
     )
 
 
+@_rule("icp.global.ambiguity")
 def ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
     """No distinct rival scores ``ambiguity_ratio`` × the best (``seed_contradiction_ambiguity_ratio`` for a
     solution that overturns a position seed)."""
@@ -251,7 +285,8 @@ def ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
     if c is None:
         return None
     g = config.global_init
-    limit = g.ambiguity_ratio if c.overturns is None else min(g.ambiguity_ratio, g.seed_contradiction_ambiguity_ratio)
+    strict = c.overturns is not None and "icp.global.ambiguity.overturn" not in config.ablate
+    limit = min(g.ambiguity_ratio, g.seed_contradiction_ambiguity_ratio) if strict else g.ambiguity_ratio
     ambiguous = c.rival_score >= limit * c.score
     return Check.flag(
         "icp.global.ambiguity",
@@ -264,6 +299,7 @@ def ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
 # --------------------------------------------------------------------------
 # stage 3: a seeded solution that passed its own tests
 # --------------------------------------------------------------------------
+@_rule("icp.seed.consistency")
 def seed_consistency(ev: Evidence, config: IcpConfig) -> Check | None:
     """A seeded solution stays within its position seed's region where the geometry lets ICP slide or it jumped."""
     s = ev.seed_fit
@@ -295,15 +331,24 @@ def passed(checks: tuple[Check, ...]) -> bool:
     return all(c.passed for c in checks)
 
 
-def judge(ev: Evidence, config: IcpConfig) -> tuple[Check, ...]:
-    """The checks of :data:`RULES` on one solution, stage by stage (later stages only once the earlier pass)."""
-    out: list[Check] = []
-    for stage in RULES:
+def judge(ev: Evidence, config: IcpConfig, after: tuple[Check, ...] | None = None) -> tuple[Check, ...]:
+    """The checks of :data:`RULES` on one solution, stage by stage (later stages only once the earlier pass).
+
+    ``after``: the checks of the stages that apply to every solution, already judged on this evidence; only the
+    later stages are evaluated (a seeded solution's seed-consistency stage, once it is known to be the result).
+    """
+    out: list[Check] = [] if after is None else list(after)
+    start = 0 if after is None else 2
+    if not passed(tuple(out)):
+        return tuple(out)
+    for stage in RULES[start:]:
         for rule in stage:
+            if rule.code in config.ablate:  # type: ignore[attr-defined]
+                continue
             c = rule(ev, config)
             if c is not None:
                 out.append(c)
-        if not passed(tuple(out)):
+        if not all(c.passed for c in out):
             break
     return tuple(out)
 
@@ -357,7 +402,7 @@ def seed_checks(
     """
     s_fit, s_v = seeded_fit
     checks: list[Check] = []
-    if not math.isnan(s_v):
+    if not math.isnan(s_v) and "icp.seed.free_space" not in config.ablate:
         checks.append(
             Check.at_most(
                 "icp.seed.free_space",
@@ -367,6 +412,8 @@ def seed_checks(
                 Unit.FRACTION,
             )
         )
+    if "icp.seed.fits_near" in config.ablate:
+        return tuple(checks)
     checks.append(
         Check.flag(
             "icp.seed.fits_near",

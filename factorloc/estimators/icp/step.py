@@ -90,14 +90,14 @@ def estimate(
     if not best.used_global:
         # a seeded solution that passes its own tests must also stay near its seed where it could slide or jumped
         ev = replace(best.evidence, seed_fit=seed_fit(prepared, best, seeds, config))
-        best = replace(best, evidence=ev, checks=judge(ev, config))
+        best = replace(best, evidence=ev, checks=judge(ev, config, after=best.checks))
     left_seed = any(c.code == "icp.seed.consistency" and not c.passed for c in best.checks)
     evidence = None
     if seeded is not None:
         checks = seed_checks(
             (seeded.result.fitness, seeded.violation), best.used_global, best.reliable, len(query.points_m), config
         )
-        if left_seed and passed(checks) and _fits_on_its_own(best, config):
+        if left_seed and passed(checks) and _fits_on_its_own(best, config) and "icp.seed.stays_near" not in config.ablate:
             checks += (_stays_near(prepared, best, seeds),)
         evidence = SeedEvidence(position_step=seeds.position[4], heading_step=seeds.heading[2], windowed=False, checks=checks)
     if config.seed.across_walls and not best.reliable and seeded is not None and not best.used_global and not left_seed:
@@ -148,7 +148,8 @@ def _global_needed(
     if not config.global_init.enabled or (seeded is not None and seeded.reliable):
         return False, seeded
     r = config.reliability
-    if seeded is not None and weak(seeded.strength, r.min_constraint) and seeded.result.fitness >= r.min_fitness:
+    degenerate = weak(seeded.strength, r.min_constraint) and seeded.result.fitness >= r.min_fitness if seeded else False
+    if degenerate and "icp.degenerate_skips_global" not in config.ablate:
         seeded = with_violation(seeded, prepared, query)
         return seeded.violation > r.max_violation, seeded
     return True, seeded
@@ -169,12 +170,12 @@ def _fits_on_its_own(sol: Solution, config: IcpConfig) -> bool:
 def _stays_near(prepared: IcpReference, sol: Solution, seeds: Seeds) -> Check:
     """The seed check of a seeded alignment that converged far from its seed to a fit of its own: one of the two
     is wrong and the data cannot say which, so the seed is not confirmed."""
-    d2, e = seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)
+    d2, dist = seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)
     return Check.flag(
         "icp.seed.stays_near",
         "the seeded alignment stays near its seed",
         False,
-        note=f"it converged {float(np.hypot(*e)):.2f} m from the seed to a fit of its own "
+        note=f"it converged {dist:.2f} m from the seed to a fit of its own "
         f"(fitness {sol.result.fitness:.2f}, Mahalanobis² {d2:.1f})",
     )
 
@@ -247,7 +248,12 @@ def _diagnostics(
     """Figures for people and plots (no decision reads them)."""
     r, ev = sol.result, sol.evidence
     contest, rivalry = ev.contest, ev.rivalry
-    d2 = math.nan if seeds.position is None else seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)[0]
+    if ev.seed_fit is not None:
+        d2 = ev.seed_fit.mahalanobis2
+    elif seeds.position is not None:
+        d2 = seed_distance2(prepared, sol.T_reference_query, sol.covariance, seeds)[0]
+    else:
+        d2 = math.nan
     out: dict[str, Any] = {
         "fitness": r.fitness,
         "rmse_m": r.rmse_m,
