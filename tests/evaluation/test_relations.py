@@ -57,7 +57,7 @@ def aces(laser_dir: Path) -> list[dict]:
     return _rows(laser_dir, "aces", 12, 30)
 
 
-pytestmark = pytest.mark.slow  # ~25 s: real scans, 139 Intel and 102 ACES relations, 24 of them loops
+pytestmark = pytest.mark.slow  # ~30 s: real scans, 139 Intel, 102 ACES and 113 MIT CSAIL relations, 32 of them loops
 
 
 def test_table_has_every_method_and_subset(intel: list[dict]) -> None:
@@ -88,11 +88,27 @@ def test_loop_relations_are_recovered_by_global_initialization_or_flagged(intel:
     assert ours["confidently_wrong_rate"] < 0.06
 
 
-def test_icp_covariance_on_local_relations_is_near_calibrated(intel: list[dict], aces: list[dict]) -> None:
+def test_icp_covariance_on_local_relations_is_cautious_but_not_blind(intel: list[dict], aces: list[dict]) -> None:
+    # the 1 cm floor was chosen on the worst held-out fold (MIT CSAIL, whose errors exceed what its residuals show):
+    # on Intel and ACES it makes the position NEES ~0.5-0.7 (docs/calibration/icp.md, the fold table)
     for rows in (intel, aces):
         icp = _get(rows, "ours_icp", "local")
-        assert 0.4 < icp["nees_icp_mean"] < 4.0  # conservative by design on real data (see relations_config)
-        assert icp["confidently_wrong_rate"] < 0.05
+        assert 0.2 < icp["nees_icp_mean"] < 2.0
+        assert icp["confidently_wrong_rate"] < 0.02
+
+
+@pytest.fixture(scope="module")
+def mit(laser_dir: Path) -> list[dict]:
+    return _rows(laser_dir, "mit-csail", 10, 16)
+
+
+def test_the_log_held_out_by_the_issue_is_honest_on_its_local_relations(mit: list[dict]) -> None:
+    # MIT CSAIL (360 beams at 0.5°, never used to set the rules before issue 14): before the floor the fused result was
+    # confidently wrong on 4 % of its local relations and the ICP NEES 2.8; on all of them now 0.96 % and 1.69
+    ours, icp, peer = _get(mit, "ours", "local"), _get(mit, "ours_icp", "local"), _get(mit, "open3d_p2plane", "local")
+    assert ours["confidently_wrong_rate"] < 0.03
+    assert 1.0 < icp["nees_icp_mean"] < 3.5
+    assert ours["trans_mean_cm"] < 0.85 * peer["trans_mean_cm"]
 
 
 def _failed(est) -> list[str]:  # noqa: ANN001 - an Estimate

@@ -144,9 +144,9 @@ class CovarianceConfig:
     bias_rmse_ratio_cloud: float = 0.2
     bias_heading_scale: float = 0.85
     bias_fitness_ref: float = 0.0
-    weak_exponent: float = 1.0
-    sigma_floor_m: float = 0.001
-    sigma_floor_rad: float = 0.001
+    weak_exponent: float = 1.25
+    sigma_floor_m: float = 0.01
+    sigma_floor_rad: float = 0.004
     chamfer_scale: float = 0.5
 
     def __post_init__(self) -> None:
