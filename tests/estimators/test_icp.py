@@ -230,6 +230,32 @@ def test_a_corridor_is_flagged_degenerate_with_a_long_sigma_along_it() -> None:
     assert math.sqrt(lam[1]) > 10 * math.sqrt(lam[0])
 
 
+def test_a_seeded_alignment_that_leaves_its_seed_for_a_fit_of_its_own_leaves_the_seed_unconfirmed() -> None:
+    # a room; the odometry seed is 4 cm off at σ 1 cm. With a seed-consistency test that accepts no correction at
+    # all (χ² at probability 0.01, applied to every geometry), the seeded ICP, right and well fitting, is
+    # inconsistent with its seed: it refuses itself, and since the scan fits on its own criteria away from the seed,
+    # it does not confirm the seed either (icp.seed.stays_near), so the pipeline's seed audit drops the odometry too
+    room = np.array(
+        [[3.0, y] for y in np.linspace(-2, 2, 80)]
+        + [[x, 2.0] for x in np.linspace(-1, 3, 80)]
+        + [[x, -2.0] for x in np.linspace(-1, 3, 80)]
+        + [[-1.0, y] for y in np.linspace(-2, 2, 80)]
+    )
+    truth = Pose2(0.4, -0.2, 0.1)
+    seed = Estimate.pose("odometry", Pose2(0.44, -0.2, 0.1), 0.01, 0.01, 0.01)
+    cfg = IcpConfig()
+    strict = replace(cfg, seed=replace(cfg.seed, consistency_probability=0.01, check_max_constraint=0.5))
+    prep = prepare_reference(Reference(scan=Scan(room)), strict)
+    est = estimate(prep, truth.inverse().transform_points(room), Hypotheses((seed,)), strict)
+    assert not est.reliable and _failed(est) == ["icp.seed.consistency"]
+    assert math.hypot(est.values[0] - truth.x, est.values[1] - truth.y) < 0.005
+    assert [c.code for c in est.seed.checks if not c.passed] == ["icp.seed.stays_near"]
+    assert seed_audit([seed, est]) == {0: f"seed contradicted by icp: {est.seed.reason}"}
+    # with the default test, the same correction (4σ of the seed, in a room that constrains every direction) stands
+    ok = estimate(prepare_reference(Reference(scan=Scan(room))), truth.inverse().transform_points(room), Hypotheses((seed,)))
+    assert ok.reliable and not ok.seed.contradicted
+
+
 def test_step_protocol_skips_without_scans_and_plugs_into_localize() -> None:
     step = IcpStep()
     assert isinstance(step, Step)
@@ -324,7 +350,10 @@ def test_kidnapped_robot_recovered_through_the_pipeline_odometry_position_gated_
     assert icp.estimate.diagnostics["used_global_init"]
     if (seed, index) in _WIDENED:
         assert "widened" in icp.reason
-    assert math.hypot(loc.pose.x - truth.x, loc.pose.y - truth.y) < 0.02
+    # recovered: within 10 cm and 1° (the simulated lidar errs by ~2 cm per scan pair, like the real logs) and within
+    # the fused covariance's 3σ ellipse
+    e = np.array([loc.pose.x - truth.x, loc.pose.y - truth.y])
+    assert math.hypot(*e) < 0.1 and float(e @ np.linalg.solve(loc.covariance[:2, :2], e)) < 11.83
     assert abs(math.remainder(loc.pose.theta - truth.theta, 2 * math.pi)) < math.radians(1.0)
 
 
@@ -380,10 +409,10 @@ def test_correlated_error_grows_as_the_fitness_falls() -> None:
         CovarianceConfig(bias_fitness_ref=-1.0)
 
 
-def test_simulated_laser_scans_are_never_confidently_wrong_and_at_most_5x_cautious() -> None:
-    # the simulated LMS200 model errs less than the real logs at the same fit RMSE (IcpConfig.bias_rmse_ratio): the
-    # default σ, set on the real logs, is cautious here; measured on these 26 reliable pairs: position NEES 0.56
-    # (largest 4.8), heading 0.13 (largest 0.68)
+def test_simulated_laser_scans_are_about_as_well_calibrated_as_the_real_logs() -> None:
+    # the simulated lidar reproduces the real logs' errors (its sensor-pose error, heavy-tailed like theirs), so the σ
+    # set on the real logs fits it as it fits them: ICP position NEES between Intel's 0.49 and MIT CSAIL's 1.69 on
+    # all their local relations. Measured on these pairs: position NEES 2.15 (one of 26 beyond 3σ), heading 0.33
     pos, head = [], []
     for seed in range(30):
         ref, pts, truth, hyp = _laser_pair(100 + seed)
@@ -395,8 +424,8 @@ def test_simulated_laser_scans_are_never_confidently_wrong_and_at_most_5x_cautio
         head.append(math.remainder(est.values[2] - truth.theta, 2 * math.pi) ** 2 / est.covariance[2, 2])
     pos, head = np.array(pos), np.array(head)
     assert len(pos) >= 20
-    assert 0.2 < pos.mean() < 2.5 and np.all(pos < 11.83)  # 2 dof: mean 2; 3σ ↔ χ² 11.83
-    assert 0.05 < head.mean() < 1.2 and np.all(head < 9.0)  # 1 dof: mean 1
+    assert 0.5 < pos.mean() < 3.5 and np.sum(pos > 11.83) <= 1  # 2 dof: mean 2; 3σ ↔ χ² 11.83
+    assert 0.05 < head.mean() < 1.5 and np.all(head < 9.0)  # 1 dof: mean 1
 
 
 @pytest.fixture(scope="module", params=["intel", "aces"])
