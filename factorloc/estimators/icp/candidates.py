@@ -24,7 +24,6 @@ from factorloc.estimators.icp.config import IcpConfig
 from factorloc.estimators.icp.covariance import (
     constraint_strength,
     covariance,
-    largest_sigma_position,
     weak,
 )
 from factorloc.estimators.icp.reference import IcpReference
@@ -126,16 +125,12 @@ def evidence(
     contest: Contest | None = None,
     seed: SeedFit | None = None,
 ) -> Evidence:
-    """The :class:`~factorloc.estimators.icp.rules.Evidence` of an ICP result and its covariance."""
+    """The :class:`~factorloc.estimators.icp.rules.Evidence` of an ICP result (``cov``: its covariance, kept for the
+    callers' symmetry; no rule reads it)."""
     return Evidence(
         fitness=result.fitness,
-        rmse_m=result.rmse_m,
-        chamfer_m=result.chamfer_m,
-        n_inliers=result.n_inliers,
         strength=strength,
         violation=violation,
-        sigma_position_m=largest_sigma_position(cov),
-        sigma_heading_rad=math.sqrt(float(cov[2, 2])),
         rivalry=rivalry,
         contest=contest,
         seed_fit=seed,
@@ -251,7 +246,7 @@ def _search_window(
     radius: float,
 ) -> tuple[list[_Found], int]:
     """The correlative search in one window and the ICP refinement of its best candidates, best first (score,
-    then RMSE); refinements that left their candidate's basin are dropped. Also the number of candidates."""
+    then RMSE), and the number of candidates."""
     g = config.global_init
     params = g.search if radius >= g.search.radius_m else replace(g.search, radius_m=radius)
     cands = search(
@@ -266,10 +261,6 @@ def _search_window(
     found = []
     for c in cands[: g.refine]:
         r = align(prepared.target, query.points_m, c.T_reference_query, config.alignment.global_icp, kernel(config))
-        shift = c.T_reference_query.between(r.T_target_source)
-        if math.hypot(shift.x, shift.y) > g.max_shift_m and "icp.global.max_shift" not in config.ablate:
-            # the refinement left the candidate's basin (slid along a wall, or onto another place)
-            continue
         v = query.violation(prepared, r.T_target_source)
         found.append(_Found(r.fitness - config.reliability.violation_weight * v, v, r))
     found.sort(key=lambda f: (-f.score, f.result.rmse_m))

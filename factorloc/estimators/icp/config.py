@@ -167,13 +167,13 @@ class ReliabilityConfig:
     Parameters
     ----------
     min_fitness
-        Fraction of query points within ``fitness_distance_m`` of the reference after alignment.
-    max_rmse_m, max_chamfer_m
-        Inlier RMSE and truncated Chamfer distance (m).
-    max_sigma_position_m, max_sigma_heading_rad
-        Largest position σ and the heading σ of the covariance.
+        A seeded solution in degenerate geometry that fits at least this fraction of the query points within
+        ``fitness_distance_m`` is not searched for elsewhere (the scan is the same there), and a seeded solution
+        that left its seed "fits on its own" when it reaches it.
+    max_sigma_position_m
+        Largest σ across the walls of a solution unknown along them (``seed.across_walls``).
     min_inliers
-        Correspondences at the solution.
+        Fewest query points the step accepts.
     max_violation
         Largest fraction of either scan in space the other scan's sensor saw empty
         (:func:`~factorloc.registration.scan2d.alignment_violation`).
@@ -185,10 +185,7 @@ class ReliabilityConfig:
     """
 
     min_fitness: float = 0.25
-    max_rmse_m: float = 0.05
-    max_chamfer_m: float = 0.4
     max_sigma_position_m: float = 0.25
-    max_sigma_heading_rad: float = math.radians(5.0)
     min_inliers: int = 10
     max_violation: float = 0.12
     min_score: float = 0.4
@@ -201,7 +198,7 @@ class ReliabilityConfig:
             raise ConfigError(f"icp.reliability.min_constraint must be in [0, 0.5], got {self.min_constraint!r}")
         if self.min_inliers < 3:
             raise ConfigError(f"icp.reliability.min_inliers must be >= 3, got {self.min_inliers!r}")
-        _positive("reliability", self, "max_rmse_m", "max_chamfer_m", "max_sigma_position_m", "max_sigma_heading_rad")
+        _positive("reliability", self, "max_sigma_position_m")
         _non_negative("reliability", self, "max_violation", "violation_weight")
 
 
@@ -263,8 +260,6 @@ class GlobalInitConfig:
         The correlative search's grid (:class:`~factorloc.registration.global_search.GlobalSearchParams`).
     refine
         How many candidates ICP refines.
-    max_shift_m
-        A refinement that moves its candidate farther than this is dropped.
     distinct_m, distinct_rad
         Two solutions farther apart than either are distinct (rivals).
     ambiguity_ratio
@@ -295,7 +290,6 @@ class GlobalInitConfig:
     widen: bool = True
     search: GlobalSearchParams = field(default_factory=GlobalSearchParams)
     refine: int = 10
-    max_shift_m: float = 0.5
     distinct_m: float = 0.3
     distinct_rad: float = math.radians(5.0)
     ambiguity_ratio: float = 0.9
@@ -314,7 +308,7 @@ class GlobalInitConfig:
     def __post_init__(self) -> None:
         if self.refine < 1:
             raise ConfigError(f"icp.global_init.refine must be >= 1, got {self.refine!r}")
-        _positive("global_init", self, "distinct_m", "distinct_rad", "max_shift_m")
+        _positive("global_init", self, "distinct_m", "distinct_rad")
         _unit("global_init", self, "ambiguity_ratio", "seed_contradiction_ambiguity_ratio", open_low=True)
         _unit(
             "global_init",

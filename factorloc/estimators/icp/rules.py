@@ -79,13 +79,8 @@ class Evidence:
     """
 
     fitness: float
-    rmse_m: float
-    chamfer_m: float
-    n_inliers: int
     strength: float
     violation: float
-    sigma_position_m: float
-    sigma_heading_rad: float
     rivalry: Rivalry | None = None
     contest: Contest | None = None
     seed_fit: SeedFit | None = None
@@ -197,21 +192,6 @@ def score(ev: Evidence, config: IcpConfig) -> Check:
     return c
 
 
-@_rule("icp.inliers")
-def inliers(ev: Evidence, config: IcpConfig) -> Check:
-    """At least ``min_inliers`` correspondences at the solution."""
-    return Check.at_least("icp.inliers", "correspondences", ev.n_inliers, config.reliability.min_inliers, Unit.COUNT)
-
-
-@_rule("icp.fitness")
-def fitness(ev: Evidence, config: IcpConfig) -> Check:
-    """The fitness reaches ``min_fitness``."""
-    c = Check.at_least("icp.fitness", "fitness", ev.fitness, config.reliability.min_fitness)
-    if not c.passed and _overlap_supported(ev, config):
-        return c.waived("a global solution that explains what both sensors could see")
-    return c
-
-
 @_rule("icp.global.overlap")
 def overlap_ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
     """A global solution without a position seed that has a comparable rival explains its overlap well."""
@@ -226,32 +206,6 @@ def overlap_ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
         g.overlap_min_fitness,
         note=f"ambiguous: a distinct solution scores {r.ratio:.2f}×",
     )
-
-
-@_rule("icp.rmse")
-def rmse(ev: Evidence, config: IcpConfig) -> Check:
-    """The inlier RMSE is at most ``max_rmse_m``."""
-    return Check.at_most("icp.rmse", "rmse", ev.rmse_m, config.reliability.max_rmse_m, Unit.METRE)
-
-
-@_rule("icp.chamfer")
-def chamfer(ev: Evidence, config: IcpConfig) -> Check:
-    """The truncated Chamfer distance is at most ``max_chamfer_m``."""
-    return Check.at_most("icp.chamfer", "chamfer", ev.chamfer_m, config.reliability.max_chamfer_m, Unit.METRE)
-
-
-@_rule("icp.sigma_position")
-def sigma_position(ev: Evidence, config: IcpConfig) -> Check:
-    """The largest position σ is at most ``max_sigma_position_m``."""
-    return Check.at_most(
-        "icp.sigma_position", "σ position", ev.sigma_position_m, config.reliability.max_sigma_position_m, Unit.METRE
-    )
-
-
-@_rule("icp.sigma_heading")
-def sigma_heading(ev: Evidence, config: IcpConfig) -> Check:
-    """The heading σ is at most ``max_sigma_heading_rad``."""
-    return Check.at_most("icp.sigma_heading", "σθ", ev.sigma_heading_rad, config.reliability.max_sigma_heading_rad, Unit.RADIAN)
 
 
 # --------------------------------------------------------------------------
@@ -317,13 +271,13 @@ def seed_consistency(ev: Evidence, config: IcpConfig) -> Check | None:
 
 #: The rules in the order they apply, in stages (a stage runs only on a solution that passed the earlier ones).
 RULES: tuple[tuple[Rule, ...], ...] = (
-    (constraint, free_space, score, inliers, fitness, overlap_ambiguity, rmse, chamfer, sigma_position, sigma_heading),
+    (constraint, free_space, score, overlap_ambiguity),
     (seed_refuted, ambiguity),
     (seed_consistency,),
 )
 
 #: The rules a solution that is unknown along the walls (:func:`across_walls`) is not judged by.
-POSITION_RULES = frozenset({"icp.constraint", "icp.sigma_position"})
+POSITION_RULES = frozenset({"icp.constraint"})
 
 
 def passed(checks: tuple[Check, ...]) -> bool:
@@ -367,7 +321,7 @@ def across_walls(
     The first stage's checks with :data:`POSITION_RULES` waived and the score judged against
     ``seed.across_walls_min_score``; then its heading must agree with the heading seed (``heading_error_rad`` ≤
     ``heading_limit_rad``, 3σ of both) and its σ across the walls (``sigma_across_m``) reach
-    ``max_sigma_position_m``.
+    ``max_sigma_position_m`` at most.
     """
     r, s = config.reliability, config.seed
     out: list[Check] = []

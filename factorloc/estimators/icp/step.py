@@ -233,11 +233,11 @@ def _without_seed(prepared: IcpReference) -> Estimate:
     )
 
 
-_SUMMARY = ("icp.fitness", "icp.rmse", "icp.sigma_position")
+_SUMMARY = ("icp.score", "icp.free_space")
 
 
 def _reason(sol: Solution) -> str:
-    """The failed checks (or, for a reliable solution, its fitness, RMSE and σ) and where the solution came from."""
+    """The failed checks (or, for a reliable solution, its score and free-space share) and where it came from."""
     shown = sol.checks if not sol.reliable else tuple(c for c in sol.checks if c.code in _SUMMARY)
     return f"{render_checks(shown, only_failed=not sol.reliable)} ({sol.origin})"
 
