@@ -86,8 +86,8 @@ def _time_pair(methods: dict, arg, truth: Pose2, repeats: int, seconds: dict, er
 
 def run(name: str, data: Path, every: int, repeats: int) -> None:
     cfg = IcpConfig()
-    params = replace(cfg.icp, max_correspondence_m=GATE_M)
-    kernel = kernel_from_name(cfg.kernel, cfg.kernel_scale_m)
+    params = replace(cfg.alignment.icp, max_correspondence_m=GATE_M)
+    kernel = kernel_from_name(cfg.alignment.kernel, cfg.alignment.kernel_scale_m)
     pairs = _pairs(name, data, every)
 
     def ours(ref, qry, seed):
@@ -157,7 +157,9 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
     def o3d_job(c: dict) -> Pose2:
         ref, qry = c["ref"], c["qry"]
         src = open3d_cloud(qry)
-        tgt = open3d_cloud(ref, estimate_normals_2d(ref, icp_cfg.icp.normal_k, icp_cfg.icp.normal_radius_m)[0])
+        tgt = open3d_cloud(
+            ref, estimate_normals_2d(ref, icp_cfg.alignment.icp.normal_k, icp_cfg.alignment.icp.normal_radius_m)[0]
+        )
         res = reg.registration_icp(src, tgt, GATE_M, c["T0"], p2l, criteria)
         info = reg.get_information_matrix_from_point_clouds(src, tgt, GATE_M, res.transformation)
         c["info"] = info
@@ -182,7 +184,7 @@ def run_step(name: str, data: Path, every: int, repeats: int) -> None:
             "query": Query(scan=Scan(qry)),
             "hypotheses": Hypotheses().plus(odometry_estimate(odom, config.odometry)),
             "src": open3d_cloud(qry),
-            "tgt": open3d_cloud(ref, prepare_target(ref, icp_cfg.icp).normals),
+            "tgt": open3d_cloud(ref, prepare_target(ref, icp_cfg.alignment.icp).normals),
         }
         _time_pair(methods, c, truth, repeats, seconds, errors, k)
         reliable[k] = c["reliable"]

@@ -9,6 +9,12 @@ Usage::
     .venv/bin/python benchmarks/bench_icp.py --sim 100       # + 100 simulated queries for the NEES figures
     .venv/bin/python benchmarks/bench_icp.py --datasets "" --kidnapped 30 --kidnapped-seeds 1,2,3
                                                              # kidnapped-robot recovery through localize()
+    .venv/bin/python benchmarks/bench_icp.py --folds         # leave-one-log-out over Intel, ACES, MIT CSAIL
+    .venv/bin/python benchmarks/bench_icp.py --folds --candidates default,other --every 5
+
+``--folds`` evaluates each candidate setting of :data:`CANDIDATES` on every fold (fit on two logs, report on
+the third; :func:`factorloc.evaluation.folds.relations_folds`) and names the one that does best on its worst
+held-out fold (the committed default must be it).
 """
 
 from __future__ import annotations
@@ -17,20 +23,152 @@ import argparse
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from factorloc.config import Config
 from factorloc.datasets.rosbag import read_laser_log
+from factorloc.evaluation.folds import (
+    LOGS,
+    Candidate,
+    best_on_worst_fold,
+    format_folds,
+    load_laser_datasets,
+    relations_folds,
+)
 from factorloc.evaluation.relations import (
     format_table,
     read_relations,
     relations_benchmark,
+    relations_config,
     summarize,
     unrecovered_breakdown,
 )
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
+
+
+def _with_covariance(config: Config, **fields: float) -> Config:
+    """``config`` with fields of its ICP covariance group replaced."""
+    icp = config.icp
+    return replace(config, icp=replace(icp, covariance=replace(icp.covariance, **fields)))
+
+
+def _fit_inflation(train: dict, config: Config) -> Config:
+    """The inflation of the ICP covariance that gives the training logs' reliable ICP estimates a mean position
+    NEES of 2 (their χ² mean), pooled over the training logs."""
+    nees = [r.nees_position for res in train.values() for r in res if r.method == "ours_icp" and r.reliable]
+    nees = [v for v in nees if math.isfinite(v)]
+    factor = float(np.mean(nees)) / 2.0
+    return _with_covariance(config, inflation=config.icp.covariance.inflation * factor)
+
+
+#: What ``--candidates ablation`` leaves out, one at a time: rule and waiver codes (``IcpConfig.ablate``) and the
+#: flow switches of the configuration.
+ABLATIONS: tuple[str, ...] = (
+    "icp.constraint",
+    "icp.free_space",
+    "icp.score",
+    "icp.global.overlap",
+    "icp.global.seed_refuted",
+    "icp.global.ambiguity",
+    "icp.global.ambiguity.overturn",
+    "icp.seed.consistency",
+    "icp.waiver.dominant_degenerate",
+    "icp.waiver.low_but_clear",
+    "icp.waiver.overlap_supported",
+    "icp.degenerate_skips_global",
+    "icp.seed.free_space",
+    "icp.seed.fits_near",
+    "icp.seed.stays_near",
+    "global_init.ignore_degenerate_rivals",
+    "global_init.widen",
+    "seed.across_walls",
+)
+
+
+def _ablated(config: Config, what: str) -> Config:
+    """``config`` without one rule (a code) or with one flow switch (``group.field``) off."""
+    icp = config.icp
+    if what.startswith("icp."):
+        return replace(config, icp=replace(icp, ablate=(*icp.ablate, what)))
+    group, name = what.split(".")
+    return replace(config, icp=replace(icp, **{group: replace(getattr(icp, group), **{name: False})}))
+
+
+def candidates() -> dict[str, Candidate]:
+    """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
+    floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
+    training logs."""
+    base = relations_config()
+    out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
+    for floor_mm in (7.5, 10, 12.5, 15, 20):
+        for k in (0.5, 0.75):
+            for p in (1.0, 1.25, 1.5):
+                name = f"floor{floor_mm:g}" + ("" if k == 0.75 else f"_k{k}") + ("" if p == 1.0 else f"_p{p}")
+                cfg = _with_covariance(
+                    base, sigma_floor_m=floor_mm / 1000, sigma_floor_rad=0.004, bias_rmse_ratio=k, weak_exponent=p
+                )
+                out[name] = Candidate(name, cfg)
+    for what in ABLATIONS:
+        out[f"-{what}"] = Candidate(f"-{what}", _ablated(base, what))
+    return out
+
+
+def folds(data: Path, names: list[str], every: int, chosen: list[str], json_path: Path | None) -> None:
+    """Every chosen candidate on every leave-one-log-out fold; the fold table and the best on the worst fold."""
+    known = candidates()
+    if chosen == ["ablation"]:
+        chosen = ["default", *(f"-{w}" for w in ABLATIONS)]
+    unknown = [c for c in chosen if c not in known]
+    if unknown:
+        raise SystemExit(f"unknown candidate(s) {unknown}; known: {list(known)}")
+    t0 = time.perf_counter()
+    datasets = load_laser_datasets(data, names, every=every)
+    reports = relations_folds(
+        datasets, [known[c] for c in chosen], progress=lambda line: print(f"[{time.perf_counter() - t0:6.0f} s] {line}")
+    )
+    print(format_folds(reports))
+    best = best_on_worst_fold(reports)
+    print(f"best on the worst held-out fold: {best.candidate} (worst shortfall {best.worst_shortfall:.3f})")
+    for r in reports:
+        print(f"  {r.candidate}: shortfall per fold " + ", ".join(f"{f.dataset} {f.shortfall():.3f}" for f in r.folds))
+    if reports and reports[0].candidate == "default" and any(r.candidate.startswith("-") for r in reports):
+        print(rule_table(reports))
+    if json_path is not None:
+        json_path.write_text("[" + ",\n".join(r.to_json() for r in reports) + "]\n")
+
+
+def rule_table(reports: list) -> str:
+    """The leave-one-rule-out table (markdown): per rule left out and held-out log, the confidently-wrong, recovered
+    (10 cm, 1°) and flagged shares of all relations, as differences from the default in relations (+: more)."""
+    base = {f.dataset: f for f in reports[0].folds}
+    names = [f.dataset for f in reports[0].folds]
+    head = "| left out | " + " | ".join(f"{n}: c.w. / recovered / flagged" for n in names) + " |"
+    lines = [head, "|---|" + "---|" * len(names)]
+    n_all = {n: base[n].n_local + base[n].n_loop for n in names}
+    lines.append(
+        "| (nothing: the default) | "
+        + " | ".join(
+            f"{100 * base[n].confidently_wrong_all:.2f} % / {100 * base[n].recovered_all:.1f} % / "
+            f"{100 * base[n].flagged_all:.1f} %"
+            for n in names
+        )
+        + " |"
+    )
+    for rep in reports[1:]:
+        cells = []
+        for f in rep.folds:
+            b = base[f.dataset]
+            n = n_all[f.dataset]
+            cells.append(
+                f"{round(n * (f.confidently_wrong_all - b.confidently_wrong_all)):+d} / "
+                f"{round(n * (f.recovered_all - b.recovered_all)):+d} / {round(n * (f.flagged_all - b.flagged_all)):+d}"
+            )
+        lines.append(f"| `{rep.candidate[1:]}` | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def _row(rows: list[dict], method: str, subset: str) -> dict:
@@ -229,7 +367,13 @@ def main() -> None:
     ap.add_argument("--kidnapped", type=int, default=0, help="queries per simulated kidnapped scenario (0 = skip)")
     ap.add_argument("--kidnapped-seeds", default="1,2,3")
     ap.add_argument("--json", type=Path, default=None, help="write the table rows here")
+    ap.add_argument("--folds", action="store_true", help="leave-one-log-out over --datasets (default: all three logs)")
+    ap.add_argument("--candidates", default="default", help="comma-separated candidate settings for --folds")
     args = ap.parse_args()
+    if args.folds:
+        names = [d for d in args.datasets.split(",") if d] if args.datasets != "intel,aces" else list(LOGS)
+        folds(args.data, names, args.every, [c for c in args.candidates.split(",") if c], args.json)
+        return
     all_rows: list[dict] = []
     for name in [d for d in args.datasets.split(",") if d]:
         log = read_laser_log(args.data / f"{name}.sort.bag")

@@ -88,7 +88,18 @@ def _to_plain(obj: Any) -> Any:
     return obj
 
 
-def _from_plain(cls: type, data: Any, where: str) -> Any:
+def _field_default(f: dataclasses.Field) -> Any:
+    """A dataclass field's default value (None without one)."""
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def _from_plain(cls: type, data: Any, where: str, base: Any = None) -> Any:
+    """``cls`` from a mapping; missing keys keep the values of ``base`` (default: the fields' own defaults, so that
+    a nested group whose default differs from its class's defaults, e.g. ``icp.alignment.icp``, keeps it)."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where} must be a mapping, got {type(data).__name__} {data!r}")
     hints = typing.get_type_hints(cls)
@@ -98,20 +109,22 @@ def _from_plain(cls: type, data: Any, where: str) -> Any:
         raise ConfigError(f"{where} {problem}")
     kwargs: dict[str, Any] = {}
     for name, value in data.items():
-        kwargs[name] = _coerce(hints[name], value, f"{where}.{name}")
+        default = getattr(base, name) if base is not None else _field_default(fields[name])
+        kwargs[name] = _coerce(hints[name], value, f"{where}.{name}", default)
     try:
-        return cls(**kwargs)
+        return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
     except (TypeError, ValueError) as exc:
         if isinstance(exc, ConfigError):
             raise
         raise ConfigError(f"{where}: {exc}") from exc
 
 
-def _coerce(hint: Any, value: Any, where: str) -> Any:
-    """``value`` as the type ``hint`` of a config field (a dataclass, a tuple, an optional, a scalar)."""
+def _coerce(hint: Any, value: Any, where: str, default: Any = None) -> Any:
+    """``value`` as the type ``hint`` of a config field (a dataclass, a tuple, an optional, a scalar); a nested
+    dataclass keeps the values of ``default`` for the keys it does not name."""
     origin = typing.get_origin(hint)
     if dataclasses.is_dataclass(hint):
-        return _from_plain(hint, value, where)
+        return _from_plain(hint, value, where, default if isinstance(default, hint) else None)
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{where} must be a list, got {value!r}")

@@ -238,10 +238,10 @@ def test_a_single_wall_alone_leaves_the_position_undetermined(noise_seed: int) -
 
 def test_kidnapped_robot_whose_seeded_icp_fits_elsewhere_is_not_localized_confidently() -> None:
     """q0406 of ``simulate --world apartment --queries 1000 --seed 43`` (held out): kidnapped, the odometry reliable
-    (σ ≤ 25 cm) but 1.1 m off; ICP, seeded by it, converges to the true pose (< 2 cm, fitness 0.89, free-space
-    consistent, well constrained) and refuses itself as inconsistent with its seed. The odometry was then fused
-    alone, confidently wrong. Now ICP reports the seed as unconfirmed (a failed ``icp.seed.stays_near``), the audit drops the
-    odometry, and the result is undetermined instead of wrong."""
+    (σ ≤ 25 cm) but 1.1 m off. Once its odometry was fused alone, confidently wrong. With the simulated lidar's
+    sensor-pose error (issue 14) the alignment seeded by the odometry puts half of the scan into space the reference
+    saw empty: the seed is refuted, the global initialization finds the true pose and the odometry is dropped. (The
+    unconfirmed-seed case, ``icp.seed.stays_near``, is tested in ``tests/estimators/test_icp.py``.)"""
     from factorloc.evaluation import metrics
     from factorloc.sim import generate_scenario
 
@@ -251,10 +251,7 @@ def test_kidnapped_robot_whose_seeded_icp_fits_elsewhere_is_not_localized_confid
     loc = Localizer(scenario.references[0].reference).localize(sq.query)
     odo, icp = loc.step("odometry"), loc.step("icp")
     assert odo.estimate.reliable and math.hypot(odo.estimate.values[0] - sq.truth.x, odo.estimate.values[1] - sq.truth.y) > 1.0
-    assert not icp.estimate.reliable and "inconsistent with the odometry seed" in icp.reason
-    assert math.hypot(icp.estimate.values[0] - sq.truth.x, icp.estimate.values[1] - sq.truth.y) < 0.02
-    assert [c.code for c in icp.estimate.seed.checks if not c.passed] == ["icp.seed.stays_near"]
-    assert "converged" in icp.estimate.seed.reason
-    assert odo.status is StepStatus.INCONSISTENT and "seed contradicted by icp" in odo.reason
+    assert [c.code for c in icp.estimate.seed.checks if not c.passed] == ["icp.seed.free_space"]
+    assert odo.status is StepStatus.INCONSISTENT
     err = metrics.pose_errors(loc.pose.as_array()[None], sq.truth.as_array()[None])
-    assert not loc.determined and not metrics.confidently_wrong(err, loc.covariance[None])[0]
+    assert math.hypot(err[0, 0], err[0, 1]) < 0.1 and not metrics.confidently_wrong(err, loc.covariance[None])[0]

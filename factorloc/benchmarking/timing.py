@@ -76,14 +76,14 @@ def bench_icp_vs_open3d(
     from factorloc.registration.open3d_peer import open3d_icp
 
     cfg = (config or Config()).icp
-    kernel = kernel_from_name(cfg.kernel, cfg.kernel_scale_m)
+    kernel = kernel_from_name(cfg.alignment.kernel, cfg.alignment.kernel_scale_m)
     prepared: dict[str, Any] = {}
     rows = []
     for case in data.cases:
         if case.truth is None:
             continue
         pts = query_points(case.query, cfg)
-        if pts is None or len(pts) < max(3, cfg.min_inliers):
+        if pts is None or len(pts) < max(3, cfg.reliability.min_inliers):
             continue
         if case.reference_id not in prepared:
             prepared[case.reference_id] = prepare_reference(data.reference_of(case), cfg)
@@ -95,7 +95,7 @@ def bench_icp_vs_open3d(
         seed = T_rw * seed_world
         true_rq = T_rw * case.truth
         t0 = time.perf_counter()
-        ours = align(target.target, pts, seed, cfg.icp, kernel).T_target_source
+        ours = align(target.target, pts, seed, cfg.alignment.icp, kernel).T_target_source
         t1 = time.perf_counter()
         peer = open3d_icp(
             target.points_m,
@@ -103,8 +103,8 @@ def bench_icp_vs_open3d(
             seed,
             method="point_to_plane",
             target_normals=target.target.normals,
-            max_correspondence_m=cfg.icp.max_correspondence_m,
-            max_iterations=cfg.icp.max_iterations,
+            max_correspondence_m=cfg.alignment.icp.max_correspondence_m,
+            max_iterations=cfg.alignment.icp.max_iterations,
         ).T_target_source
         t2 = time.perf_counter()
         rows.append((t1 - t0, t2 - t1, _se2_error(ours, true_rq), _se2_error(peer, true_rq)))

@@ -1,4 +1,5 @@
-"""The relations benchmark of Kümmerle et al. (2009) on 2D laser logs.
+"""The relations benchmark of Kümmerle et al. (2009) on 2D laser logs (its tables:
+:mod:`factorloc.evaluation.relations_report`, re-exported here).
 
 Each ground-truth relation ``(t1, t2, T_12)`` becomes one localization
 problem: the reference is the scan at ``t1`` (reference frame = robot frame
@@ -25,7 +26,7 @@ Methods compared side by side in one run, all seeded by the same odometry:
 * ``odometry`` — the odometry alone (reliable per the odometry step's σ test);
 * ``open3d_p2p`` / ``open3d_p2plane`` — Open3D's ICP
   (:mod:`factorloc.registration.open3d_peer`), reliable when its fitness
-  reaches ``IcpConfig.min_fitness``, with the odometry's σ (it has none of its own).
+  reaches ``IcpConfig.reliability.min_fitness``, with the odometry's σ (it has none of its own).
 
 A result is *confidently wrong* when it is reliable and its position error
 exceeds the 3σ ellipse (squared Mahalanobis distance above the 2-DoF χ²
@@ -37,9 +38,8 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -50,6 +50,7 @@ from factorloc.errors import DatasetError, InputError
 from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
+from factorloc.evaluation.relations_report import METHODS, RelationResult, format_table, summarize, unrecovered_breakdown
 from factorloc.geometry import Pose2
 from factorloc.odometry_model import OdometryModel
 from factorloc.pipeline import Localizer
@@ -69,7 +70,6 @@ __all__ = [
     "unrecovered_breakdown",
 ]
 
-METHODS = ("ours", "ours_icp", "odometry", "open3d_p2p", "open3d_p2plane")
 _CHI2_3SIGMA_2DOF = float(chi2.ppf(0.9973002039367398, 2))
 
 
@@ -109,23 +109,6 @@ def read_relations(path: str | Path) -> Relations:
     return Relations(a[:, 0].copy(), a[:, 1].copy(), a[:, [2, 3, 7]].copy())
 
 
-@dataclass(frozen=True)
-class RelationResult:
-    """One method on one relation."""
-
-    method: str
-    index: int
-    kind: str  # "local" or "loop"
-    error_translation_m: float
-    error_rotation_deg: float
-    reliable: bool
-    confidently_wrong: bool
-    seconds: float
-    nees_position: float = math.nan
-    used_global_init: bool = False
-    diagnostics: dict[str, Any] = field(default_factory=dict)
-
-
 def _position_not_measured(est: Estimate) -> bool:
     """A degenerate ICP result: heading-only, or a pose whose position is unknown along a corridor."""
     if est.kind == "heading":
@@ -157,7 +140,7 @@ def relations_config(base: Config | None = None) -> Config:
     """The configuration ``ours`` runs with on the laser logs.
 
     ``base`` (default :class:`Config`) with two changes. (It used to also
-    raise ``icp.bias_rmse_ratio`` to 0.75 for real laser scans; that is now
+    raise ``icp.covariance.bias_rmse_ratio`` to 0.75 for real laser scans; that is now
     the library default, see :class:`~factorloc.estimators.icp.IcpConfig`.)
 
     * ``odometry.max_sigma_position_m = 1.0``: with the :class:`OdometryModel`
@@ -263,6 +246,9 @@ def relations_benchmark(
                 diag = {
                     "icp_status": icp_rep.status.value,
                     "icp_reason": icp_rep.reason,
+                    "icp_failed_checks": ()
+                    if icp_rep.estimate is None
+                    else tuple(c.code for c in icp_rep.estimate.checks if not c.passed),
                     "icp_seconds": icp_seconds,
                     "localize_seconds": dt,
                 }
@@ -324,7 +310,7 @@ def relations_benchmark(
             else:
                 method = "point_to_point" if m == "open3d_p2p" else "point_to_plane"
                 t0 = time.perf_counter()
-                normals = prepare_target(ref_scan.points_m, icp_cfg.icp).normals if method == "point_to_plane" else None
+                normals = prepare_target(ref_scan.points_m, icp_cfg.alignment.icp).normals if method == "point_to_plane" else None
                 res = open3d_icp(
                     ref_scan.points_m,
                     qry_scan.points_m,
@@ -335,143 +321,10 @@ def relations_benchmark(
                 )
                 dt = time.perf_counter() - t0
                 est = res.T_target_source
-                reliable = res.fitness >= icp_cfg.min_fitness
+                reliable = res.fitness >= icp_cfg.reliability.min_fitness
                 et, er = _errors(true, est)
                 wrong, d2 = _wrong(true, est, odom_cov)
                 out.append(
                     RelationResult(m, i, kind, et, er, reliable, reliable and wrong, dt, d2, False, {"fitness": res.fitness})
                 )
     return out
-
-
-def summarize(results: Sequence[RelationResult], dataset: str = "") -> list[dict[str, Any]]:
-    """The table: one row per (method, subset ∈ local/loop/all).
-
-    Columns: ``dataset``, ``method``, ``subset``, ``n``, ``trans_mean_cm``,
-    ``trans_std_cm``, ``rot_mean_deg``, ``rot_std_deg``, ``reliable_rate``,
-    ``confidently_wrong_rate`` (over all relations of the subset),
-    ``recovered_rate`` (error < 10 cm and < 1°), ``unrecovered_flagged_rate``
-    (of those not recovered, the fraction marked unreliable), ``ms_per_pair`` (mean), ``ms_median``,
-    ``trans_mean_reliable_cm`` (mean over the reliable ones) and ``nees_icp_mean``.
-    Plain dicts: ``pandas.DataFrame(summarize(...))`` gives a data frame.
-    """
-    rows = []
-    methods = [m for m in METHODS if any(r.method == m for r in results)]
-    for m in methods:
-        for subset in ("local", "loop", "all"):
-            rs = [r for r in results if r.method == m and (subset == "all" or r.kind == subset)]
-            if not rs:
-                continue
-            et = np.array([r.error_translation_m for r in rs]) * 100.0
-            er = np.array([r.error_rotation_deg for r in rs])
-            rel = np.array([r.reliable for r in rs])
-            rec = (et < 10.0) & (er < 1.0)
-            nees = np.array([r.diagnostics.get("icp_nees_position", math.nan) for r in rs if r.diagnostics.get("icp_reliable")])
-            rows.append(
-                {
-                    "dataset": dataset,
-                    "method": m,
-                    "subset": subset,
-                    "n": len(rs),
-                    "trans_mean_cm": float(et.mean()),
-                    "trans_std_cm": float(et.std()),
-                    "rot_mean_deg": float(er.mean()),
-                    "rot_std_deg": float(er.std()),
-                    "reliable_rate": float(rel.mean()),
-                    "confidently_wrong_rate": float(np.mean([r.confidently_wrong for r in rs])),
-                    "recovered_rate": float(rec.mean()),
-                    "unrecovered_flagged_rate": float(np.mean(~rel[~rec])) if np.any(~rec) else 1.0,
-                    "trans_mean_reliable_cm": float(et[rel].mean()) if rel.any() else math.nan,
-                    "ms_per_pair": 1000.0 * float(np.mean([r.seconds for r in rs])),
-                    "ms_median": 1000.0 * float(np.median([r.seconds for r in rs])),
-                    "nees_icp_mean": float(np.mean(nees)) if len(nees) else math.nan,
-                }
-            )
-    return rows
-
-
-_RULES = (
-    ("ambiguous", "ambiguous"),
-    ("degenerate", "degenerate geometry"),
-    ("free space", "seen-free space"),
-    ("score", "score (fitness"),
-    ("fitness", "fitness "),
-    ("σ", "σ"),
-    ("rmse", "rmse "),
-    ("chamfer", "chamfer "),
-    ("seed inconsistent", "inconsistent with the"),
-    ("contradicts seed", "contradicts the"),
-)
-
-
-def _first_rule(reason: str) -> str:
-    """The rule named first in an ICP verdict's reason (its checks are listed in order), or "other"."""
-    hits = [(reason.find(key), name) for name, key in _RULES if key in reason]
-    return min(hits)[1] if hits else "other"
-
-
-def unrecovered_breakdown(
-    results: Sequence[RelationResult], subset: str = "loop", tolerance: tuple[float, float] = (0.1, 1.0)
-) -> dict[str, int]:
-    """Why ``ours`` did not recover the relations of ``subset`` (``"local"``, ``"loop"`` or ``"all"``).
-
-    A relation is recovered when the fused pose is within ``tolerance`` (m, deg; the table's 10 cm and 1°).
-    Each unrecovered one is counted under one key:
-
-    * ``icp_correct_rejected: <rule>`` — the ICP step's own pose was within the tolerance but it called it
-      unreliable; ``<rule>`` is the first test its reason names (ambiguous, degenerate, free space, score,
-      fitness, σ, …);
-    * ``icp_correct_gated`` — the ICP pose was within the tolerance and reliable, yet not what the pipeline
-      returned (the consistency gate or the seed audit);
-    * ``icp_wrong_flagged`` — the ICP pose was off and the result is unreliable (flagged, as it should be);
-    * ``not_flagged_near`` — reliable and off, but within 15 cm and 2.5° (e.g. a loop closure 1.1° off);
-    * ``not_flagged_wrong`` — reliable and farther off.
-
-    Plus ``n`` (relations of the subset) and ``recovered``.
-    """
-    out: dict[str, int] = {"n": 0, "recovered": 0}
-    for r in results:
-        if r.method != "ours" or (subset != "all" and r.kind != subset):
-            continue
-        out["n"] += 1
-        if r.error_translation_m < tolerance[0] and r.error_rotation_deg < tolerance[1]:
-            out["recovered"] += 1
-            continue
-        d = r.diagnostics
-        icp_ok = (
-            d.get("icp_error_translation_m", math.inf) < tolerance[0] and d.get("icp_error_rotation_deg", math.inf) < tolerance[1]
-        )
-        if icp_ok and not d.get("icp_reliable", False):
-            key = f"icp_correct_rejected: {_first_rule(str(d.get('icp_reason', '')))}"
-        elif icp_ok:
-            key = "icp_correct_gated"
-        elif not r.reliable:
-            key = "icp_wrong_flagged"
-        elif r.error_translation_m < 0.15 and r.error_rotation_deg < 2.5:
-            key = "not_flagged_near"
-        else:
-            key = "not_flagged_wrong"
-        out[key] = out.get(key, 0) + 1
-    return out
-
-
-def format_table(rows: Sequence[dict[str, Any]]) -> str:
-    """A fixed-width text rendering of :func:`summarize`'s rows (for the CLI and benchmarks).
-
-    ``rel. cm`` is the mean translation error over the relations the method marked reliable.
-    """
-    head = (
-        f"{'dataset':8s} {'method':15s} {'subset':6s} {'n':>5s} {'trans cm':>14s} {'rot deg':>14s} "
-        f"{'reliable':>8s} {'rel. cm':>7s} {'conf.wrong':>10s} {'recov':>6s} {'flagged':>7s} "
-        f"{'ms/pair':>8s} {'ms med':>7s} {'NEES':>6s}"
-    )
-    lines = [head, "-" * len(head)]
-    for r in rows:
-        lines.append(
-            f"{r['dataset']:8s} {r['method']:15s} {r['subset']:6s} {r['n']:5d} "
-            f"{r['trans_mean_cm']:6.2f}±{r['trans_std_cm']:<7.2f} {r['rot_mean_deg']:6.2f}±{r['rot_std_deg']:<7.2f} "
-            f"{100 * r['reliable_rate']:7.1f}% {r['trans_mean_reliable_cm']:7.2f} "
-            f"{100 * r['confidently_wrong_rate']:9.2f}% {100 * r['recovered_rate']:5.1f}% "
-            f"{100 * r['unrecovered_flagged_rate']:6.1f}% {r['ms_per_pair']:8.2f} {r['ms_median']:7.2f} {r['nees_icp_mean']:6.2f}"
-        )
-    return "\n".join(lines)

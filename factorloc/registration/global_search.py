@@ -53,14 +53,8 @@ class GlobalSearchParams:
     n_coarse
         How many level-1 maxima survive non-maximum suppression and are
         re-scored on the fine level. Larger than ``n_candidates``: the coarse
-        score ranks a partially overlapping true pose poorly (a 180° laser
-        scan turned by 100–170° against its reference overlaps it on a few
-        walls, which at 0.3 m / 3° fall off the coarse field's peak), whereas
-        the fine score ranks it well. Measured on the Intel loop relations
-        (every 5th, 243): the ICP-refined result was within 10 cm / 1° of the
-        truth for 89.3 % with the 10 best coarse maxima and 93.4 % with 40;
-        on all 1211, 89.9 % with 40 and 91.8 % with 120 (ACES, 88 loops:
-        54.5 → 63.6 %).
+        score ranks a partially overlapping true pose poorly, the fine score
+        well (figures: ``docs/calibration/icp.md``).
     separation_m, separation_rad
         Two maxima closer than both are the same (suppression radius).
     """

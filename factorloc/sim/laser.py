@@ -18,17 +18,29 @@ from factorloc.sim.raycast import FACE, cast_all
 from factorloc.sim.world import Obstacle, World
 from factorloc.types import Scan
 
-#: Defaults of :func:`render_scan`'s error model (a SICK LMS200-class 2D lidar, the scanner class of the
-#: Intel Research Lab and ACES logs): statistical (white) range error 5 mm (1σ) and systematic error
-#: ±15 mm, "depending on surface reflectivity, incidence angle and range" (SICK LMS200 technical
-#: description, mm mode, 1–8 m); later SICK families are specified alike (LMS1xx ±30 mm systematic /
-#: 12 mm statistical, LMS5xx ±25 mm / 6–7 mm, SICK knowledge base "Measurement errors LMSxxx").
-#: The ±15 mm bound is taken as 2σ of a per-surface offset. Beam divergence 4.6 mrad and 13 mm exit
-#: spot: the spot diameter ``d·0.0046 + 0.013`` m of the LMS5xx (HR) operating instructions, §3.5.2.
-SCAN_SIGMA_M = 0.005
-SCAN_SYSTEMATIC_SIGMA_M = 0.0075
+#: Defaults of :func:`render_scan`'s error model: a SICK LMS200-class 2D lidar, the scanner class of the
+#: real logs (Intel, ACES, MIT CSAIL), set from those logs' ICP residuals rather than from the datasheet
+#: (``benchmarks/bench_lidar_model.py``; ``docs/calibration/icp.md``). The datasheet's statistical error
+#: (5 mm, 1σ) and ±15 mm systematic error per surface (SICK LMS200 technical description, mm mode, 1–8 m;
+#: later SICK families alike) made simulated residuals too correlated along a wall (lag-1 autocorrelation
+#: 0.41 against the logs' 0.11–0.25); 8 mm white and a 4 mm per-surface offset give the logs' residual RMSE
+#: (14 mm; logs 11–21 mm) and their autocorrelation (0.27 / 0.15 / 0.07 at lags 1 / 2 / 5; Intel 0.25 /
+#: 0.15 / 0.07). Beam divergence 4.6 mrad and 13 mm exit spot: the spot diameter ``d·0.0046 + 0.013`` m of
+#: the LMS5xx (HR) operating instructions, §3.5.2.
+SCAN_SIGMA_M = 0.008
+SCAN_SYSTEMATIC_SIGMA_M = 0.004
 SCAN_BEAM_DIVERGENCE_RAD = 0.0046
 SCAN_SPOT_EXIT_M = 0.013
+#: The sensor-pose error of :func:`render_scan` (1σ per axis and in heading): the pose a real scan was taken from
+#: differs from the pose it is stamped with (motion during the sweep, timing, the mount), an error shared by all
+#: its beams that no residual shows. Without it the simulated ICP errs half as much as the logs' at the same
+#: residuals (median position error 0.82 cm against 0.91–2.57 cm); with it ICP's error on simulated pairs sits
+#: among the logs' (median ~2 cm, MIT CSAIL's).
+SCAN_POSE_SIGMA_M = 0.014
+SCAN_POSE_SIGMA_RAD = math.radians(0.25)
+#: Degrees of freedom of that error (Student's t, scaled to the σ above; ``inf``: Gaussian): real scans' errors
+#: are heavy-tailed (on MIT CSAIL the mean ICP error is 1.4× the median, the NEES's 99 % quantile 2× χ²'s).
+SCAN_POSE_DOF = math.inf
 
 
 def render_scan(
@@ -45,6 +57,9 @@ def render_scan(
     beam_divergence_rad: float = SCAN_BEAM_DIVERGENCE_RAD,
     spot_exit_m: float = SCAN_SPOT_EXIT_M,
     mixed_min_jump_m: float = 0.05,
+    pose_sigma_m: float = SCAN_POSE_SIGMA_M,
+    pose_sigma_rad: float = SCAN_POSE_SIGMA_RAD,
+    pose_dof: float = SCAN_POSE_DOF,
 ) -> Scan:
     """A planar laser scan at ``height_m`` above the floor: ``n_beams`` beams over 360°, beam i at azimuth 2π·i/n.
 
@@ -55,10 +70,12 @@ def render_scan(
     :data:`SCAN_SIGMA_M` and below), whose errors are *not* all white:
 
     * **statistical error** ``sigma_m`` (m, 1σ): independent Gaussian range
-      noise per beam (datasheet "statistical error": 5 mm);
+      noise per beam (8 mm: the datasheet's 5 mm and what else a real
+      scan's residuals hold, see :data:`SCAN_SIGMA_M`);
     * **systematic error** ``systematic_sigma_m`` (m, 1σ): one Gaussian range
       offset per surface (wall/obstacle face, all occluders together) and
-      per scan, shared by every beam that hits that surface in this scan.
+      per scan, shared by every beam that hits that surface in this scan
+      (4 mm, see :data:`SCAN_SIGMA_M`).
       The datasheet's ±15 mm systematic error depends on the surface's
       reflectivity, the incidence angle and the range, so a surface seen
       from another pose is offset differently: each scan draws its own
@@ -72,14 +89,22 @@ def render_scan(
       uniformly between the near and the far surface (a phantom point in
       free space), as real time-of-flight scanners report.
 
+    * **sensor-pose error** ``pose_sigma_m`` (m, per axis) and ``pose_sigma_rad``: the scan is taken from
+      ``T_world_robot · δ`` with one rigid motion δ per scan (Student's t with ``pose_dof`` degrees of
+      freedom, scaled to those σ) and returned in the frame of
+      ``T_world_robot``: the motion during the sweep, timing and the mount move the real scan as a whole, an
+      error that no residual between two scans shows (the real logs' ICP errors are 1–2 cm larger than their
+      residuals explain; see :data:`SCAN_POSE_SIGMA_M`).
+
     Angular errors (encoder jitter) are not modelled: for the scanners
     above they are far below the beam spacing.
 
     Random numbers: the statistical noise is drawn from ``rng`` exactly as
     before this model existed (``n_beams`` normals, only when
     ``sigma_m > 0``); the systematic offsets and mixed pixels come from a
-    child generator (``rng.spawn(1)``), so ``rng``'s own stream, and hence
-    everything a simulator draws after the scan, does not depend on them.
+    child generator (``rng.spawn(1)``), the sensor-pose error from a second one
+    (only when its σ are not 0), so ``rng``'s own stream, and hence everything
+    a simulator draws after the scan, does not depend on them.
     """
     if not isinstance(T_world_robot, Pose2):
         raise InputError(f"T_world_robot must be a Pose2, got {type(T_world_robot).__name__}")
@@ -90,11 +115,27 @@ def render_scan(
     div = nonnegative_float("beam_divergence_rad", beam_divergence_rad)
     spot0 = nonnegative_float("spot_exit_m", spot_exit_m)
     jump = positive_float("mixed_min_jump_m", mixed_min_jump_m)
+    pose_m = nonnegative_float("pose_sigma_m", pose_sigma_m)
+    pose_rad = nonnegative_float("pose_sigma_rad", pose_sigma_rad)
+    dof = float(pose_dof)
+    if not dof > 2.0:
+        raise InputError(f"pose_dof must be > 2 (a finite variance), got {pose_dof!r}")
     az = 2.0 * math.pi * np.arange(n) / n
+    systematic = rng is not None and (sig_sys > 0 or div > 0 or spot0 > 0)
+    moved = rng is not None and (pose_m > 0 or pose_rad > 0)
+    # one spawn for both children: the systematic one is the child a single spawn gives (as before this error)
+    children = rng.spawn(int(systematic) + int(moved)) if systematic or moved else []
+    T_world_sensor = T_world_robot
+    if moved:
+        g = children[-1]
+        # Student's t with pose_dof degrees of freedom, scaled to a standard deviation of 1 (Gaussian when inf)
+        u = g.normal(0.0, 1.0, 3) if math.isinf(dof) else g.standard_t(dof, 3) / math.sqrt(dof / (dof - 2.0))
+        d = u * np.array([pose_m, pose_m, pose_rad])
+        T_world_sensor = T_world_robot * Pose2(float(d[0]), float(d[1]), float(d[2]))
     hits, _, _ = cast_all(
         world,
         occluders,
-        T_world_robot,
+        T_world_sensor,
         positive_float("height_m", height_m),
         az,
         np.zeros(1),
@@ -106,8 +147,8 @@ def render_scan(
     keep = (hits.kind[0] >= FACE) & (r < rmax) & ~hits.glass[0]
     if rng is not None and sig > 0:
         r = r + rng.normal(0.0, sig, r.shape)
-    if rng is not None and (sig_sys > 0 or div > 0 or spot0 > 0):
-        r = _lidar_systematic(r, keep, hits.face[0], rng.spawn(1)[0], sig_sys, div, spot0, jump, 2 * math.pi / n)
+    if systematic:
+        r = _lidar_systematic(r, keep, hits.face[0], children[0], sig_sys, div, spot0, jump, 2 * math.pi / n)
     pts = np.column_stack([r * np.cos(az), r * np.sin(az)])[keep]
     if len(pts) == 0:
         raise InputError(f"the scanner at {T_world_robot} sees nothing within {rmax} m")

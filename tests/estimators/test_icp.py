@@ -14,12 +14,23 @@ from factorloc import localize
 from factorloc.config import Config
 from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses, Step
-from factorloc.estimators.icp import IcpConfig, IcpStep, estimate, prepare_reference, query_points
+from factorloc.estimators.icp import (
+    AlignmentConfig,
+    CovarianceConfig,
+    GlobalInitConfig,
+    IcpConfig,
+    IcpStep,
+    ReliabilityConfig,
+    estimate,
+    prepare_reference,
+    query_points,
+)
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.gating import seed_audit
 from factorloc.geometry import Pose2
 from factorloc.sim import DepthCamera, apartment, render_cloud, render_cloud_360
 from factorloc.types import Estimate, Odometry, Query, Reference, Scan, StepStatus
+from factorloc.verdicts import render_checks
 
 
 @dataclass
@@ -28,6 +39,11 @@ class Case:
     query: Query
     truth: Pose2
     overlap: float
+
+
+def _cov(cfg: IcpConfig, **kwargs: float) -> IcpConfig:
+    """``cfg`` with its covariance group's fields replaced."""
+    return replace(cfg, covariance=replace(cfg.covariance, **kwargs))
 
 
 def _free_pose(world, rng: np.random.Generator, clearance: float = 0.4) -> Pose2:
@@ -67,7 +83,7 @@ def _cases(n: int, seed: int, query_360: bool) -> list[Case]:
             pts = query_points(q, cfg)
         except InputError:
             continue  # the camera faces a wall too closely to see anything in the band
-        if len(pts) < cfg.min_inliers:
+        if len(pts) < cfg.reliability.min_inliers:
             continue
         prep = prepare_reference(ref, cfg)
         d, _ = cKDTree(prep.points_m).query(T_ref.between(truth).transform_points(pts))
@@ -92,6 +108,11 @@ def _errors(case: Case, est: Estimate) -> tuple[float, float, float]:
     e = np.array([est.values[0] - case.truth.x, est.values[1] - case.truth.y])
     nees = float(e @ np.linalg.solve(est.covariance[:2, :2], e))
     return float(np.hypot(*e)), abs(math.remainder(est.values[2] - case.truth.theta, 2 * math.pi)), nees
+
+
+def _failed(est: Estimate) -> list[str]:
+    """The codes of the estimate's failed checks, in order."""
+    return [c.code for c in est.checks if not c.passed]
 
 
 def _degenerate(est: Estimate) -> bool:
@@ -135,7 +156,7 @@ def test_degenerate_views_are_accurate_across_the_walls_and_in_heading_unknown_a
 def test_a_distant_global_solution_does_not_overturn_a_free_space_consistent_seed(seeded_results) -> None:
     # single 58° views whose seeded alignment found nothing (the reference never saw what the query sees) but put
     # no point into seen-free space: the better-fitting place the global search finds elsewhere is not the truth
-    blocked = [(c, e) for c, e in seeded_results if e.reason.startswith("contradicts the odometry seed")]
+    blocked = [(c, e) for c, e in seeded_results if "icp.global.seed_refuted" in _failed(e)]
     assert len(blocked) >= 2
     for case, est in blocked:
         assert not est.reliable
@@ -160,24 +181,15 @@ def test_a_seeded_icp_reports_its_seed_audit_verdict_itself(seeded_results) -> N
     assert sum(not e.seed.contradicted for _, e in seeded_results) >= 0.5 * len(seeded_results)
 
 
-def test_unreliable_estimates_say_why(seeded_results) -> None:
+def test_unreliable_estimates_say_why_from_their_failed_checks(seeded_results) -> None:
     for _, est in seeded_results:
         assert est.reason
         if not est.reliable:
-            assert any(
-                word in est.reason
-                for word in (
-                    "degenerate",
-                    "fitness",
-                    "score",
-                    "ambiguous",
-                    "inconsistent",
-                    "σ",
-                    "seen-free",
-                    "rmse",
-                    "contradicts",
-                )
-            )
+            failed = [c for c in est.checks if not c.passed]
+            assert failed and all(c.code.startswith("icp.") for c in failed)
+            assert est.reason.startswith(render_checks(failed))  # the reason is rendered from them (and the origin)
+        else:
+            assert all(c.passed for c in est.checks)
 
 
 @pytest.mark.slow
@@ -211,12 +223,38 @@ def test_a_corridor_is_flagged_degenerate_with_a_long_sigma_along_it() -> None:
     assert abs(est.values[0] - 1.0) < 0.005
     assert est.sigma("x") < 0.03 and est.sigma("y") > 20.0
     # the full pose is unreliable, with its long axis along the corridor
-    est = estimate(prep, query, hyp, replace(prep.config, heading_only_when_degenerate=False))
+    est = estimate(prep, query, hyp, replace(prep.config, seed=replace(prep.config.seed, across_walls=False)))
     assert not est.reliable
-    assert "degenerate" in est.reason
+    assert _failed(est)[0] == "icp.constraint" and "degenerate" in est.reason
     lam, vec = np.linalg.eigh(est.covariance[:2, :2])
     assert abs(vec[1, 1]) > 0.99  # world y is along the corridor (reference turned by 90°)
     assert math.sqrt(lam[1]) > 10 * math.sqrt(lam[0])
+
+
+def test_a_seeded_alignment_that_leaves_its_seed_for_a_fit_of_its_own_leaves_the_seed_unconfirmed() -> None:
+    # a room; the odometry seed is 4 cm off at σ 1 cm. With a seed-consistency test that accepts no correction at
+    # all (χ² at probability 0.01, applied to every geometry), the seeded ICP, right and well fitting, is
+    # inconsistent with its seed: it refuses itself, and since the scan fits on its own criteria away from the seed,
+    # it does not confirm the seed either (icp.seed.stays_near), so the pipeline's seed audit drops the odometry too
+    room = np.array(
+        [[3.0, y] for y in np.linspace(-2, 2, 80)]
+        + [[x, 2.0] for x in np.linspace(-1, 3, 80)]
+        + [[x, -2.0] for x in np.linspace(-1, 3, 80)]
+        + [[-1.0, y] for y in np.linspace(-2, 2, 80)]
+    )
+    truth = Pose2(0.4, -0.2, 0.1)
+    seed = Estimate.pose("odometry", Pose2(0.44, -0.2, 0.1), 0.01, 0.01, 0.01)
+    cfg = IcpConfig()
+    strict = replace(cfg, seed=replace(cfg.seed, consistency_probability=0.01, check_max_constraint=0.5))
+    prep = prepare_reference(Reference(scan=Scan(room)), strict)
+    est = estimate(prep, truth.inverse().transform_points(room), Hypotheses((seed,)), strict)
+    assert not est.reliable and _failed(est) == ["icp.seed.consistency"]
+    assert math.hypot(est.values[0] - truth.x, est.values[1] - truth.y) < 0.005
+    assert [c.code for c in est.seed.checks if not c.passed] == ["icp.seed.stays_near"]
+    assert seed_audit([seed, est]) == {0: f"seed contradicted by icp: {est.seed.reason}"}
+    # with the default test, the same correction (4σ of the seed, in a room that constrains every direction) stands
+    ok = estimate(prepare_reference(Reference(scan=Scan(room))), truth.inverse().transform_points(room), Hypotheses((seed,)))
+    assert ok.reliable and not ok.seed.contradicted
 
 
 def test_step_protocol_skips_without_scans_and_plugs_into_localize() -> None:
@@ -246,7 +284,7 @@ def test_the_correlated_error_ratio_follows_the_query_source() -> None:
     case = _cases(1, 5, query_360=True)[0]
     step = IcpStep()
     cfg = step.config
-    assert (cfg.bias_rmse_ratio, cfg.bias_rmse_ratio_cloud) == (0.75, 0.2)
+    assert (cfg.covariance.bias_rmse_ratio, cfg.covariance.bias_rmse_ratio_cloud) == (0.75, 0.2)
     prep = step.prepare(case.reference)
     t = case.truth
     hyp = Hypotheses((Estimate.pose("odometry", Pose2(t.x + 0.02, t.y - 0.02, t.theta + 0.01), 0.05, 0.05, 0.03),))
@@ -254,19 +292,35 @@ def test_the_correlated_error_ratio_follows_the_query_source() -> None:
     from_cloud = step.estimate(prep, case.query, hyp)
     as_scan = step.estimate(prep, Query(scan=Scan(pts)), hyp)
     assert np.allclose(from_cloud.values, as_scan.values)  # same alignment, different covariance
-    assert np.allclose(from_cloud.covariance, estimate(prep, pts, hyp, replace(cfg, bias_rmse_ratio=0.2)).covariance)
+    assert np.allclose(from_cloud.covariance, estimate(prep, pts, hyp, _cov(cfg, bias_rmse_ratio=0.2)).covariance)
     assert np.allclose(as_scan.covariance, estimate(prep, pts, hyp, cfg).covariance)
     assert np.trace(as_scan.covariance[:2, :2]) > 3.0 * np.trace(from_cloud.covariance[:2, :2])
 
 
 def test_config_rejects_bad_values() -> None:
-    with pytest.raises(ConfigError, match="bias_rmse_ratio_cloud"):
-        IcpConfig(bias_rmse_ratio_cloud=-0.1)
-    with pytest.raises(ConfigError, match="covariance"):
-        IcpConfig(covariance="magic")
-    with pytest.raises(ConfigError, match="kernel"):
-        IcpConfig(kernel="nope")
-    assert Config.from_dict({"icp": {"min_fitness": 0.5, "icp": {"max_iterations": 10}}}).icp.icp.max_iterations == 10
+    with pytest.raises(ConfigError, match=r"icp\.covariance\.bias_rmse_ratio_cloud"):
+        CovarianceConfig(bias_rmse_ratio_cloud=-0.1)
+    with pytest.raises(ConfigError, match=r"icp\.covariance\.model"):
+        CovarianceConfig(model="magic")
+    with pytest.raises(ConfigError, match=r"icp\.alignment\.kernel"):
+        AlignmentConfig(kernel="nope")
+    with pytest.raises(ConfigError, match=r"icp\.global_init\.refine"):
+        GlobalInitConfig(refine=0)
+    with pytest.raises(ConfigError, match=r"icp\.reliability"):
+        IcpConfig(reliability=ReliabilityConfig(min_fitness=1.5))
+    with pytest.raises(ConfigError, match="unknown key"):
+        Config.from_dict({"icp": {"min_fitness": 0.5}})  # the groups are nested
+
+
+def test_config_loads_nested_groups_from_yaml(tmp_path) -> None:
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        "icp:\n  reliability: {min_fitness: 0.5}\n  alignment:\n    icp: {max_iterations: 10}\n  global_init: {enabled: false}\n"
+    )
+    cfg = Config.from_yaml(path).icp
+    assert cfg.reliability.min_fitness == 0.5 and cfg.alignment.icp.max_iterations == 10 and not cfg.global_init.enabled
+    assert cfg.alignment.icp.min_correspondence_m == IcpConfig().alignment.icp.min_correspondence_m  # the rest kept
+    assert Config.from_dict(Config(icp=cfg).to_dict()).icp == cfg
 
 
 # (seed, query index) of kidnapped queries of generate_scenario('apartment', 30, seed, faults=('kidnapped',)) whose
@@ -297,7 +351,10 @@ def test_kidnapped_robot_recovered_through_the_pipeline_odometry_position_gated_
     assert icp.estimate.diagnostics["used_global_init"]
     if (seed, index) in _WIDENED:
         assert "widened" in icp.reason
-    assert math.hypot(loc.pose.x - truth.x, loc.pose.y - truth.y) < 0.02
+    # recovered: within 10 cm and 1° (the simulated lidar errs by ~2 cm per scan pair, like the real logs) and within
+    # the fused covariance's 3σ ellipse
+    e = np.array([loc.pose.x - truth.x, loc.pose.y - truth.y])
+    assert math.hypot(*e) < 0.1 and float(e @ np.linalg.solve(loc.covariance[:2, :2], e)) < 11.83
     assert abs(math.remainder(loc.pose.theta - truth.theta, 2 * math.pi)) < math.radians(1.0)
 
 
@@ -320,11 +377,11 @@ def _laser_pair(seed: int) -> tuple[Reference, np.ndarray, Pose2, Hypotheses]:
 
 def test_correlated_term_heading_scale_shrinks_only_its_heading_sigma() -> None:
     ref, pts, _, hyp = _laser_pair(3)
-    cfg = IcpConfig()
+    cfg = _cov(IcpConfig(), sigma_floor_m=0.0, sigma_floor_rad=0.0)  # the term alone, without the floors
     prep = prepare_reference(ref, cfg)
-    full = estimate(prep, pts, hyp, replace(cfg, bias_heading_scale=1.0)).covariance
+    full = estimate(prep, pts, hyp, _cov(cfg, bias_heading_scale=1.0)).covariance
     scaled = estimate(prep, pts, hyp, cfg).covariance  # default 0.85
-    white = estimate(prep, pts, hyp, replace(cfg, bias_rmse_ratio=0.0)).covariance
+    white = estimate(prep, pts, hyp, _cov(cfg, bias_rmse_ratio=0.0)).covariance
     np.testing.assert_allclose(scaled[:2, :2], full[:2, :2], rtol=1e-9)
     # heading variance: white + k²·bias; the position–heading covariances: white + k·bias
     assert scaled[2, 2] - white[2, 2] == pytest.approx(0.85**2 * (full[2, 2] - white[2, 2]), rel=1e-6)
@@ -334,29 +391,29 @@ def test_correlated_term_heading_scale_shrinks_only_its_heading_sigma() -> None:
 
 def test_correlated_error_grows_as_the_fitness_falls() -> None:
     ref, pts, _, hyp = _laser_pair(3)
-    cfg = IcpConfig(bias_fitness_ref=0.9)  # off (0) by default
+    cfg = _cov(IcpConfig(), bias_fitness_ref=0.9)  # off (0) by default
     prep = prepare_reference(ref, cfg)
     est = estimate(prep, pts, hyp, cfg)
-    plain = estimate(prep, pts, hyp, replace(cfg, bias_fitness_ref=0.0)).covariance
+    plain = estimate(prep, pts, hyp, _cov(cfg, bias_fitness_ref=0.0)).covariance
     np.testing.assert_array_equal(plain, estimate(prep, pts, hyp, IcpConfig()).covariance)
-    white = estimate(prep, pts, hyp, replace(cfg, bias_rmse_ratio=0.0)).covariance
+    white = estimate(prep, pts, hyp, _cov(cfg, bias_rmse_ratio=0.0)).covariance
     fit = est.diagnostics["fitness"]
     assert 0.25 < fit < 0.9
     # σ_b = ratio·rmse·max(1, 0.9 / fitness): the bias term's variances scale by (0.9 / fitness)²
     np.testing.assert_allclose(est.covariance - white, (0.9 / fit) ** 2 * (plain - white), rtol=1e-6, atol=1e-15)
     # ... and a fit above the reference fitness is not made more confident
-    high = estimate(prep, pts, hyp, replace(cfg, bias_fitness_ref=0.5 * fit)).covariance
+    high = estimate(prep, pts, hyp, _cov(cfg, bias_fitness_ref=0.5 * fit)).covariance
     np.testing.assert_allclose(high, plain, rtol=1e-12, atol=1e-18)
     with pytest.raises(ConfigError, match="bias_heading_scale"):
-        IcpConfig(bias_heading_scale=0.0)
+        CovarianceConfig(bias_heading_scale=0.0)
     with pytest.raises(ConfigError, match="bias_fitness_ref"):
-        IcpConfig(bias_fitness_ref=-1.0)
+        CovarianceConfig(bias_fitness_ref=-1.0)
 
 
-def test_simulated_laser_scans_are_never_confidently_wrong_and_at_most_5x_cautious() -> None:
-    # the simulated LMS200 model errs less than the real logs at the same fit RMSE (IcpConfig.bias_rmse_ratio): the
-    # default σ, set on the real logs, is cautious here; measured on these 26 reliable pairs: position NEES 0.56
-    # (largest 4.8), heading 0.13 (largest 0.68)
+def test_simulated_laser_scans_are_about_as_well_calibrated_as_the_real_logs() -> None:
+    # the simulated lidar reproduces the real logs' errors (its sensor-pose error, heavy-tailed like theirs), so the σ
+    # set on the real logs fits it as it fits them: ICP position NEES between Intel's 0.49 and MIT CSAIL's 1.69 on
+    # all their local relations. Measured on these pairs: position NEES 2.15 (one of 26 beyond 3σ), heading 0.33
     pos, head = [], []
     for seed in range(30):
         ref, pts, truth, hyp = _laser_pair(100 + seed)
@@ -368,8 +425,8 @@ def test_simulated_laser_scans_are_never_confidently_wrong_and_at_most_5x_cautio
         head.append(math.remainder(est.values[2] - truth.theta, 2 * math.pi) ** 2 / est.covariance[2, 2])
     pos, head = np.array(pos), np.array(head)
     assert len(pos) >= 20
-    assert 0.2 < pos.mean() < 2.5 and np.all(pos < 11.83)  # 2 dof: mean 2; 3σ ↔ χ² 11.83
-    assert 0.05 < head.mean() < 1.2 and np.all(head < 9.0)  # 1 dof: mean 1
+    assert 0.5 < pos.mean() < 3.5 and np.sum(pos > 11.83) <= 1  # 2 dof: mean 2; 3σ ↔ χ² 11.83
+    assert 0.05 < head.mean() < 1.5 and np.all(head < 9.0)  # 1 dof: mean 1
 
 
 @pytest.fixture(scope="module", params=["intel", "aces"])

@@ -57,7 +57,7 @@ def aces(laser_dir: Path) -> list[dict]:
     return _rows(laser_dir, "aces", 12, 30)
 
 
-pytestmark = pytest.mark.slow  # ~25 s: real scans, 139 Intel and 102 ACES relations, 24 of them loops
+pytestmark = pytest.mark.slow  # ~30 s: real scans, 139 Intel, 102 ACES and 113 MIT CSAIL relations, 32 of them loops
 
 
 def test_table_has_every_method_and_subset(intel: list[dict]) -> None:
@@ -88,11 +88,31 @@ def test_loop_relations_are_recovered_by_global_initialization_or_flagged(intel:
     assert ours["confidently_wrong_rate"] < 0.06
 
 
-def test_icp_covariance_on_local_relations_is_near_calibrated(intel: list[dict], aces: list[dict]) -> None:
+def test_icp_covariance_on_local_relations_is_cautious_but_not_blind(intel: list[dict], aces: list[dict]) -> None:
+    # the 1 cm floor was chosen on the worst held-out fold (MIT CSAIL, whose errors exceed what its residuals show):
+    # on Intel and ACES it makes the position NEES ~0.5-0.7 (docs/calibration/icp.md, the fold table)
     for rows in (intel, aces):
         icp = _get(rows, "ours_icp", "local")
-        assert 0.4 < icp["nees_icp_mean"] < 4.0  # conservative by design on real data (see relations_config)
-        assert icp["confidently_wrong_rate"] < 0.05
+        assert 0.2 < icp["nees_icp_mean"] < 2.0
+        assert icp["confidently_wrong_rate"] < 0.02
+
+
+@pytest.fixture(scope="module")
+def mit(laser_dir: Path) -> list[dict]:
+    return _rows(laser_dir, "mit-csail", 10, 16)
+
+
+def test_the_log_held_out_by_the_issue_is_honest_on_its_local_relations(mit: list[dict]) -> None:
+    # MIT CSAIL (360 beams at 0.5°, never used to set the rules before issue 14): before the floor the fused result was
+    # confidently wrong on 4 % of its local relations and the ICP NEES 2.8; on all of them now 0.96 % and 1.69
+    ours, icp, peer = _get(mit, "ours", "local"), _get(mit, "ours_icp", "local"), _get(mit, "open3d_p2plane", "local")
+    assert ours["confidently_wrong_rate"] < 0.03
+    assert 1.0 < icp["nees_icp_mean"] < 3.5
+    assert ours["trans_mean_cm"] < 0.85 * peer["trans_mean_cm"]
+
+
+def _failed(est) -> list[str]:  # noqa: ANN001 - an Estimate
+    return [c.code for c in est.checks if not c.passed]
 
 
 @functools.lru_cache(maxsize=2)
@@ -125,9 +145,9 @@ def test_intel_loop_closures_recovered_by_global_initialization(laser_dir: Path,
     assert est.reliable, why
     assert err_m < 0.10 and err_deg < 1.0
     if index == 1948:
-        assert est.diagnostics["constraint"] < IcpConfig().min_constraint
+        assert est.diagnostics["constraint"] < IcpConfig().reliability.min_constraint
     else:
-        assert est.diagnostics["global_score"] < IcpConfig().min_score
+        assert est.diagnostics["global_score"] < IcpConfig().reliability.min_score
         # the points each sensor could see fit: the low fitness is the 180° field of view, not a misfit
         assert est.diagnostics["overlap_fitness"] > 0.9 > 2 * est.diagnostics["fitness"]
         assert est.diagnostics["overlap_points"] >= 30
@@ -146,9 +166,9 @@ def test_intel_loop_closures_accepted_on_their_overlap_fitness(laser_dir: Path, 
     assert est.reliable, why
     assert err_m < 0.10 and err_deg < 1.0
     d = est.diagnostics
-    assert d["global_score"] < cfg.min_score  # the plain score test would reject it
-    assert d["overlap_fitness"] >= cfg.global_overlap_min_fitness
-    assert d["rival_score"] < cfg.global_overlap_rival_ratio * d["global_score"]
+    assert d["global_score"] < cfg.reliability.min_score  # the plain score test would reject it
+    assert d["overlap_fitness"] >= cfg.global_init.overlap_min_fitness
+    assert d["rival_score"] < cfg.global_init.overlap_rival_ratio * d["global_score"]
 
 
 @pytest.mark.parametrize(
@@ -162,9 +182,9 @@ def test_loop_solutions_with_a_comparable_rival_and_a_poor_overlap_are_flagged(l
     cfg = IcpConfig()
     assert err_m > 0.4
     assert not est.reliable
-    assert "overlap fitness is only" in est.reason
-    assert est.diagnostics["rival_score"] >= cfg.global_ambiguity_overlap_ratio * est.diagnostics["global_score"]
-    assert est.diagnostics["overlap_fitness"] < cfg.global_overlap_min_fitness
+    assert "icp.global.overlap" in _failed(est)
+    assert est.diagnostics["rival_score"] >= cfg.global_init.ambiguity_overlap_ratio * est.diagnostics["global_score"]
+    assert est.diagnostics["overlap_fitness"] < cfg.global_init.overlap_min_fitness
 
 
 def test_a_low_score_solution_is_not_accepted_when_its_rival_explains_the_overlap_as_well(laser_dir: Path) -> None:
@@ -178,9 +198,9 @@ def test_a_low_score_solution_is_not_accepted_when_its_rival_explains_the_overla
     err = Pose2.from_array(rel.poses[675]).between(Pose2.from_array(est.values))
     d = est.diagnostics
     assert math.hypot(err.x, err.y) > 1.5
-    assert d["overlap_fitness"] >= cfg.global_overlap_min_fitness  # the overlap alone would accept it
-    assert d["rival_overlap_fitness"] > d["overlap_fitness"] - cfg.global_overlap_rival_margin
-    assert not est.reliable and "score" in est.reason
+    assert d["overlap_fitness"] >= cfg.global_init.overlap_min_fitness  # the overlap alone would accept it
+    assert d["rival_overlap_fitness"] > d["overlap_fitness"] - cfg.global_init.overlap_rival_margin
+    assert not est.reliable and "icp.score" in _failed(est)
 
 
 @pytest.mark.parametrize("index", [1242, 1223])
@@ -189,7 +209,7 @@ def test_aces_corridor_loops_with_a_near_twin_are_flagged(laser_dir: Path, index
     est, err_m, err_deg = _loop_estimate(laser_dir, "aces", index)
     assert err_m > 0.5 and err_deg > 170.0
     assert not est.reliable
-    assert "degenerate geometry" in est.reason
+    assert "icp.constraint" in _failed(est)
 
 
 def test_relations_reader_and_subset_reject_bad_input(tmp_path: Path) -> None:
@@ -211,39 +231,39 @@ def test_relations_config_changes_only_the_odometry_limits() -> None:
     from factorloc.config import Config
 
     cfg, base = relations_config(), Config()
-    assert cfg.icp == base.icp and cfg.icp.bias_rmse_ratio == 0.75
+    assert cfg.icp == base.icp and cfg.icp.covariance.bias_rmse_ratio == 0.75
     assert (cfg.odometry.max_sigma_position_m, cfg.odometry.max_sigma_heading_rad) == (1.0, 0.55)
 
 
 def test_unrecovered_breakdown_names_why_each_relation_was_missed() -> None:
-    def res(et: float, er: float, reliable: bool, icp_et: float, icp_er: float, icp_reliable: bool, reason: str, kind="loop"):
+    def res(et: float, er: float, reliable: bool, icp_et: float, icp_er: float, icp_reliable: bool, failed: str, kind="loop"):
         diag = {
             "icp_error_translation_m": icp_et,
             "icp_error_rotation_deg": icp_er,
             "icp_reliable": icp_reliable,
-            "icp_reason": reason,
+            "icp_failed_checks": tuple(failed.split()),
         }
         return RelationResult("ours", 0, kind, et, er, reliable, False, 0.0, diagnostics=diag)
 
     results = [
-        res(0.02, 0.3, True, 0.02, 0.3, True, "fitness 0.8"),  # recovered
-        # ICP right but unreliable: the first test its reason names counts
-        res(13.0, 30.0, False, 0.01, 0.4, False, "ambiguous: a distinct solution scores 0.70 vs 0.76 (global init)"),
-        res(13.0, 30.0, False, 0.03, 0.2, False, "degenerate geometry: constraint 0.017 < 0.030; score (fitness − v…"),
-        res(9.0, 90.0, False, 0.01, 0.2, False, "score (fitness − violation) 0.39 < 0.40 (global initialization)"),
-        res(0.3, 5.0, True, 0.02, 0.2, True, "fitness 0.9"),  # right and reliable, not returned: gated
-        res(4.0, 89.0, False, 4.0, 89.0, False, "ambiguous"),  # wrong, flagged
-        res(0.03, 1.2, True, 0.03, 1.2, True, "fitness 0.5"),  # reliable, 1.2° off: near
-        res(1.78, 179.8, True, 1.78, 179.8, True, "fitness 0.61"),  # reliable 180° flip: wrong
-        res(0.5, 3.0, False, 0.5, 3.0, False, "score", kind="local"),  # another subset
+        res(0.02, 0.3, True, 0.02, 0.3, True, ""),  # recovered
+        # ICP right but unreliable: its first failed check counts
+        res(13.0, 30.0, False, 0.01, 0.4, False, "icp.global.ambiguity"),
+        res(13.0, 30.0, False, 0.03, 0.2, False, "icp.constraint icp.score"),
+        res(9.0, 90.0, False, 0.01, 0.2, False, "icp.score"),
+        res(0.3, 5.0, True, 0.02, 0.2, True, ""),  # right and reliable, not returned: gated
+        res(4.0, 89.0, False, 4.0, 89.0, False, "icp.global.ambiguity"),  # wrong, flagged
+        res(0.03, 1.2, True, 0.03, 1.2, True, ""),  # reliable, 1.2° off: near
+        res(1.78, 179.8, True, 1.78, 179.8, True, ""),  # reliable 180° flip: wrong
+        res(0.5, 3.0, False, 0.5, 3.0, False, "icp.score", kind="local"),  # another subset
     ]
     b = unrecovered_breakdown(results, "loop")
     assert b == {
         "n": 8,
         "recovered": 1,
-        "icp_correct_rejected: ambiguous": 1,
-        "icp_correct_rejected: degenerate": 1,
-        "icp_correct_rejected: score": 1,
+        "icp_correct_rejected: icp.global.ambiguity": 1,
+        "icp_correct_rejected: icp.constraint": 1,
+        "icp_correct_rejected: icp.score": 1,
         "icp_correct_gated": 1,
         "icp_wrong_flagged": 1,
         "not_flagged_near": 1,

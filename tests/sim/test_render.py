@@ -291,7 +291,7 @@ def test_bad_sensor_inputs_are_refused_with_the_field_named() -> None:
 # --------------------------------------------------------------------------
 # render_scan's real-lidar error model
 # --------------------------------------------------------------------------
-_WHITE_ONLY = dict(systematic_sigma_m=0.0, beam_divergence_rad=0.0, spot_exit_m=0.0)
+_WHITE_ONLY = dict(systematic_sigma_m=0.0, beam_divergence_rad=0.0, spot_exit_m=0.0, pose_sigma_m=0.0, pose_sigma_rad=0.0)
 
 
 def _range_errors(world: World, pose: Pose2, rng: np.random.Generator, **kw) -> np.ndarray:
@@ -313,7 +313,7 @@ def test_scan_systematic_error_is_one_offset_per_wall_and_scan() -> None:
     rng = np.random.default_rng(2)
     offsets = []
     for _ in range(100):
-        e = _range_errors(world, pose, rng, sigma_m=0.0, systematic_sigma_m=0.0075, beam_divergence_rad=0.0, spot_exit_m=0.0)
+        e = _range_errors(world, pose, rng, **{**_WHITE_ONLY, "sigma_m": 0.0, "systematic_sigma_m": 0.0075})
         v = np.sort(e)
         groups = np.split(v, np.flatnonzero(np.diff(v) > 1e-5) + 1)  # points are stored as float32: 10 µm apart
         assert len(groups) <= 4  # four walls, four offsets
@@ -332,7 +332,11 @@ def test_scan_mixed_pixels_fall_between_the_edge_surfaces() -> None:
     rng = np.random.default_rng(3)
     between = 0
     for _ in range(20):
-        pts = pose.transform_points(render_scan(world, pose, n_beams=720, rng=rng, sigma_m=0.0, systematic_sigma_m=0.0).points_m)
+        pts = pose.transform_points(
+            render_scan(
+                world, pose, n_beams=720, rng=rng, sigma_m=0.0, systematic_sigma_m=0.0, pose_sigma_m=0.0, pose_sigma_rad=0.0
+            ).points_m
+        )
         x = pts[:, 0]
         in_gap = (x > 6.5) & (x < 9.9) & (np.abs(pts[:, 1] - 5.0) < 0.5)  # free space behind the pillar
         between += int(in_gap.sum())
@@ -340,6 +344,29 @@ def test_scan_mixed_pixels_fall_between_the_edge_surfaces() -> None:
     assert between < 20 * 6  # but only at the edges: at most a few beams per scan
     no_mix = render_scan(world, pose, n_beams=720, rng=rng, sigma_m=0.0, **_WHITE_ONLY)
     assert np.allclose(no_mix.points_m, exact.points_m)
+
+
+def test_scan_sensor_pose_error_moves_the_whole_scan_rigidly_with_the_given_sigma() -> None:
+    # without range errors, a scan with the sensor-pose error is the exact scan of a slightly moved sensor: ICP
+    # against the exact scan recovers one rigid motion per scan, with the σ asked for
+    from factorloc.registration.icp2d import align, prepare_target
+
+    world, pose = square_room(), Pose2(3.0, 4.0, 0.2)
+    exact = render_scan(world, pose, n_beams=720).points_m
+    target = prepare_target(exact)
+    rng = np.random.default_rng(4)
+    offsets = []
+    for _ in range(60):
+        moved = render_scan(
+            world, pose, n_beams=720, rng=rng, sigma_m=0.0, **{**_WHITE_ONLY, "pose_sigma_m": 0.02, "pose_sigma_rad": 0.01}
+        )
+        r = align(target, moved.points_m, Pose2())
+        assert r.rmse_m < 5e-3  # a rigid motion of the whole scan (residuals from the corners only)
+        offsets.append((r.T_target_source.x, r.T_target_source.y, r.T_target_source.theta))
+    o = np.array(offsets)
+    assert np.std(o[:, :2]) == pytest.approx(0.02, rel=0.25)
+    assert np.std(o[:, 2]) == pytest.approx(0.01, rel=0.25)
+    assert np.allclose(render_scan(world, pose, n_beams=720, rng=rng, sigma_m=0.0, **_WHITE_ONLY).points_m, exact)
 
 
 def test_scan_error_model_leaves_the_callers_random_stream_as_before() -> None:
