@@ -75,8 +75,10 @@ class AlignmentConfig:
     global_icp
         ICP parameters refining the global-initialization candidates (converged more tightly: the candidates
         are ranked by their scores at the solution).
-    kernel, kernel_scale_m
-        Robust kernel (``"cauchy"``, ``"huber"``, ``"tukey"``, ``"l2"``) and its scale (m).
+    kernel
+        Robust kernel (``"cauchy"``, ``"huber"``, ``"tukey"``, ``"l2"``).
+    kernel_scale_m
+        The kernel's scale (m).
     seed_gate_margin_m
         The seeded alignment's first correspondence gate is ``3σ_seed + margin`` (m; σ_seed combines the
         position σ and the heading σ times the median range), clipped to ``icp``'s gates.
@@ -335,8 +337,16 @@ class IcpConfig:
         Whether :func:`factorloc.pipeline.default_steps` runs the step.
     scan
         How a 2D scan is cut out of a 3D cloud (query and reference).
-    alignment, covariance, reliability, seed, global_init
-        The groups above.
+    alignment
+        The alignment group (:class:`AlignmentConfig`).
+    covariance
+        The covariance group (:class:`CovarianceConfig`).
+    reliability
+        The reliability rules' limits (:class:`ReliabilityConfig`).
+    seed
+        The seeded attempt and its seed tests (:class:`SeedConfig`).
+    global_init
+        The global initialization (:class:`GlobalInitConfig`).
     ablate
         Codes of rules (``icp.<rule>``, :mod:`factorloc.estimators.icp.rules`) and waivers (``icp.waiver.*``)
         left out: for measuring what each buys (the leave-one-rule-out table of ``docs/calibration/icp.md``);
