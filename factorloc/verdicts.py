@@ -211,12 +211,22 @@ def _number(value: float, unit: Unit) -> str:
     return f"{value:.3g}"
 
 
+def _holds(check: Check) -> bool:
+    """Whether the value meets the limit in the check's own comparison, to :data:`ROUNDING_TOLERANCE`."""
+    slack = ROUNDING_TOLERANCE * max(1.0, abs(check.limit))
+    if check.comparison is Comparison.AT_LEAST:
+        return check.value >= check.limit - slack
+    return check.value <= check.limit + slack
+
+
 def render_check(check: Check) -> str:
     """The words of one check: ``"fitness 0.21 < 0.25"``, ``"σθ 6.2° > 5°"``, or its label for a flag."""
     if check.comparison is Comparison.FLAG:
         text = check.label if check.passed else (check.failure or f"not {check.label}")
     else:
-        ok = check.passed
+        # the operator states how the numbers compare, not whether the check passed: a waived check
+        # (passed although its value misses the limit) reads "0.385 < 0.4 (waived: ...)"
+        ok = check.passed if math.isnan(check.value) or math.isnan(check.limit) else _holds(check)
         if check.comparison is Comparison.AT_LEAST:
             op = "≥" if ok else "<"
         else:

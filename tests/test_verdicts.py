@@ -30,6 +30,9 @@ def test_checks_render_with_units_and_only_the_failed_ones_by_default() -> None:
     assert render_checks([ok], only_failed=False) == "correspondences 40 ≥ 10"
     assert render_check(Check.flag("x.y", "a seed", False, note="none given")) == "not a seed (none given)"
     assert fit.waived("dominant global solution").passed and fit.waived("w").comparison is Comparison.AT_LEAST
+    # a waived check keeps the true comparison of its numbers and says why it passed anyway
+    assert render_check(fit.waived("dominant global solution")) == "fitness 0.2 < 0.25 (dominant global solution)"
+    assert render_check(Check.at_least("a.b", "x", 1.0 - 1e-12, 1.0, tolerance=1e-9)) == "x 1 ≥ 1"
 
 
 def test_an_estimate_renders_its_reason_from_its_checks_and_cannot_be_reliable_with_a_failed_one() -> None:

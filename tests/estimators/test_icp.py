@@ -30,7 +30,7 @@ from factorloc.gating import seed_audit
 from factorloc.geometry import Pose2
 from factorloc.sim import DepthCamera, apartment, render_cloud, render_cloud_360
 from factorloc.types import Estimate, Odometry, Query, Reference, Scan, StepStatus
-from factorloc.verdicts import render_checks
+from factorloc.verdicts import render_check, render_checks
 
 
 @dataclass
@@ -251,7 +251,9 @@ def test_a_seeded_alignment_that_leaves_its_seed_for_a_fit_of_its_own_leaves_the
     assert not est.reliable and _failed(est) == ["icp.seed.consistency"]
     assert math.hypot(est.values[0] - truth.x, est.values[1] - truth.y) < 0.005
     assert [c.code for c in est.seed.checks if not c.passed] == ["icp.seed.stays_near"]
-    assert seed_audit([seed, est]) == {0: f"seed contradicted by icp: {est.seed.reason}"}
+    audit = seed_audit([seed, est])
+    assert list(audit) == [0] and audit[0].code == "gate.seed_audit" and not audit[0].passed
+    assert render_check(audit[0]) == f"seed contradicted by icp ({est.seed.reason})"
     # with the default test, the same correction (4σ of the seed, in a room that constrains every direction) stands
     ok = estimate(prepare_reference(Reference(scan=Scan(room))), truth.inverse().transform_points(room), Hypotheses((seed,)))
     assert ok.reliable and not ok.seed.contradicted
