@@ -14,6 +14,12 @@
   script that imports mermaid from a CDN when the page holds a mermaid diagram; the
   tutorials hold none, so the script is dropped from pages without one (the built site
   then references no CDN; ``tests/docs/test_site.py`` checks it).
+- The theme's script bundle names two scripts it loads only on demand from unpkg.com: a
+  ResizeObserver polyfill (for browsers without ResizeObserver) and mermaid (for pages with a
+  mermaid diagram). After the build both URLs are pointed into the site itself: the polyfill is
+  vendored in ``docs/assets/vendor/`` (resize-observer-polyfill 1.5.1, MIT, its licence beside it);
+  mermaid is not (this site draws no diagram), so a page with a mermaid diagram fails the build
+  instead of fetching it from a CDN.
 """
 
 from __future__ import annotations
@@ -70,10 +76,38 @@ _MERMAID_LOADER = re.compile(r'<script type="module">(?:(?!</script>).)*?mermaid
 _MERMAID_DIAGRAM = re.compile(r'<[a-z]+ [^>]*class="[^"]*\bjp-Mermaid\b')
 
 
+_THEME_MERMAID_DIAGRAM = re.compile(r'<(?:pre|div) [^>]*class="[^"]*\bmermaid\b')
+
+
 def on_post_page(output: str, **kwargs: Any) -> str:
+    page = kwargs.get("page")
+    if _THEME_MERMAID_DIAGRAM.search(output):
+        raise ValueError(f"{getattr(page, 'url', '?')}: a mermaid diagram, but the site bundles no mermaid (docs/hooks.py)")
     if _MERMAID_DIAGRAM.search(output):
         return output
     return _MERMAID_LOADER.sub("", output)
+
+
+#: The theme bundle's on-demand CDN scripts → where they live in the built site, relative to the bundle
+#: (``assets/javascripts/``); resolved at run time against the bundle's own address, so it works at any
+#: page depth and from ``file://``.
+BUNDLE_ON_DEMAND = {
+    "https://unpkg.com/resize-observer-polyfill": "../vendor/resize-observer-polyfill/ResizeObserver.js",
+    "https://unpkg.com/mermaid@11/dist/mermaid.min.js": "../vendor/mermaid/mermaid.min.js",
+}
+
+
+def localize_bundle(bundle_js: str) -> str:
+    """The theme's bundle with its on-demand CDN URLs replaced by the site's own copies."""
+    for url, local in BUNDLE_ON_DEMAND.items():
+        here = f'new URL("{local}",document.querySelector(\'script[src*="javascripts/bundle."]\').src).href'
+        bundle_js = bundle_js.replace(f'"{url}"', here)
+    return bundle_js
+
+
+def on_post_build(config: Any, **kwargs: Any) -> None:
+    for bundle in (Path(config["site_dir"]) / "assets" / "javascripts").glob("bundle.*.min.js"):
+        bundle.write_text(localize_bundle(bundle.read_text()))
 
 
 def _inputs_digest(source: Path) -> str:
