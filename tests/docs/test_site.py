@@ -96,6 +96,8 @@ def test_quickstart_tutorial_is_rendered_with_its_output_figures(site: Path, chr
 
 #: Hosts of content delivery networks and web fonts: none may appear in the built site's pages and styles.
 CDN = re.compile(r"cdn\.jsdelivr\.net|cdnjs\.cloudflare\.com|unpkg\.com|fonts\.googleapis\.com|fonts\.gstatic\.com|polyfill\.io")
+
+
 def test_the_theme_loads_its_polyfill_from_the_site_itself(site: Path) -> None:
     # the theme's bundle asks for a ResizeObserver polyfill on browsers without one: docs/hooks.py points it
     # into the site, where the vendored copy must be
