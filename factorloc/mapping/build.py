@@ -267,7 +267,8 @@ class _Builder:
                 est = estimate(self.refs[i], self.points[j], Hypotheses(), cfg.icp)
             else:
                 hyp = Hypotheses((Estimate.pose("map", seed_T, covariance=rel_ref),))
-                est = estimate(self.refs[i], self.points[j], hyp, self.seeded_cfg)
+                icp = cfg.icp if sigma >= cfg.fallback_sigma_m else self.seeded_cfg
+                est = estimate(self.refs[i], self.points[j], hyp, icp)
             self.seconds["icp"] += time.perf_counter() - t0
             ok = _full_position(est)
             T_ij = Pose2.from_array(est.values)

@@ -51,7 +51,11 @@ class MapConfig:
         Loop closures are searched at every ``loop_every``-th place.
     global_sigma_m
         When the relative position σ of a candidate exceeds this, its ICP runs without the graph's seed (the
-        step's global search) instead of seeded by it; a seeded closure never falls back to the global search.
+        step's global search) instead of seeded by it.
+    fallback_sigma_m
+        A seeded closure whose relative position σ is at least this falls back to the step's global search in
+        the seed's window when the seeded alignment is unreliable (the step's own rule); below it, it does not
+        (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment).
     refine_scans
         Align every scan that is not a place to its place with the ICP step (seeded by the odometry offset) and
         hang it there by the ICP pose and covariance when reliable; otherwise (or False) by the odometry offset
@@ -62,8 +66,6 @@ class MapConfig:
         Scale of the M-estimator on a loop closure's whitened error (``"huber"``, ``"cauchy"``).
     gnc_inlier_probability
         χ² probability of GNC's inlier threshold (``"gnc"``).
-    isam_every
-        The streaming iSAM2 estimate is updated every this many places (loop proposals read it).
     """
 
     place_spacing_m: float = 0.5
@@ -78,15 +80,15 @@ class MapConfig:
     loop_max_candidates: int = 3
     loop_every: int = 1
     global_sigma_m: float = 1.0
+    fallback_sigma_m: float = 0.3
     refine_scans: bool = True
     robust: str = "gnc"
     robust_scale: float = 3.0
     gnc_inlier_probability: float = 0.99
-    isam_every: int = 1
 
     def __post_init__(self) -> None:
         positive = ("place_spacing_m", "place_turn_rad", "loop_max_search_m", "loop_max_heading_rad", "global_sigma_m")
-        for name in (*positive, "robust_scale"):
+        for name in (*positive, "fallback_sigma_m", "robust_scale"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0.0 and math.isfinite(v)):
                 raise ConfigError(f"mapping.{name} must be a finite number > 0, got {v!r}")
@@ -94,7 +96,7 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0.0 and math.isfinite(v)):
                 raise ConfigError(f"mapping.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("min_scan_points", "loop_max_candidates", "loop_every", "isam_every"):
+        for name in ("min_scan_points", "loop_max_candidates", "loop_every"):
             v = getattr(self, name)
             lo = 0 if name == "loop_max_candidates" else 1
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
