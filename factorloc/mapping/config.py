@@ -55,7 +55,9 @@ class MapConfig:
     fallback_sigma_m
         A seeded closure whose relative position σ is at least this falls back to the step's global search in
         the seed's window when the seeded alignment is unreliable (the step's own rule); below it, it does not
-        (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment).
+        (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment). The
+        default (= ``global_sigma_m``) never falls back: with 0.3 m the ACES log gained wrong closures in its
+        corridors (loop relations 1.4 m → 5.2 m, docs/mapping.md).
     refine_scans
         Align every scan that is not a place to its place with the ICP step (seeded by the odometry offset) and
         hang it there by the ICP pose and covariance when reliable; otherwise (or False) by the odometry offset
@@ -78,9 +80,9 @@ class MapConfig:
     loop_min_path_m: float = 5.0
     loop_max_heading_rad: float = math.radians(60.0)
     loop_max_candidates: int = 3
-    loop_every: int = 1
+    loop_every: int = 2
     global_sigma_m: float = 1.0
-    fallback_sigma_m: float = 0.3
+    fallback_sigma_m: float = 1.0
     refine_scans: bool = True
     robust: str = "gnc"
     robust_scale: float = 3.0
