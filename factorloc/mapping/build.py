@@ -384,14 +384,13 @@ def _batch(links: list[_Link], T0: Pose2, initial, config: MapConfig):  # noqa: 
     for k, ln in enumerate(links):
         f = graph.at(k + 1)
         if ln.kind == "loop" and robust is not None:
-            e = float(np.sqrt(2.0 * f.error(result)))  # a robust factor's error is ρ(whitened): report its weight
-            weights.append(_mestimator_weight(robust, config.robust_scale, f, result, e))
+            weights.append(_mestimator_weight(robust, config.robust_scale, f, result))
         else:
             weights.append(1.0)
     return graph, result, weights
 
 
-def _mestimator_weight(kind: str, scale: float, factor, values, _e: float) -> float:  # noqa: ANN001
+def _mestimator_weight(kind: str, scale: float, factor, values) -> float:  # noqa: ANN001
     """The IRLS weight of a robustified between-factor at the solution (from its whitened residual)."""
     import gtsam
 
