@@ -174,6 +174,7 @@ class _Builder:
         self.path = np.asarray(odom.path_length_m(self.stamps), dtype=np.float64)
         icp = config.icp
         self.seeded_cfg = replace(icp, global_init=replace(icp.global_init, enabled=False))
+        self.fallback_cfg = replace(icp, global_init=replace(icp.global_init, widen=False))
         self.links: list[_Link] = []
         self.closures: list[Closure] = []
         self.robust_stream = None if config.robust == "none" else ("huber" if config.robust == "huber" else "cauchy")
@@ -266,8 +267,12 @@ class _Builder:
             if sigma > cfg.global_sigma_m:
                 est = estimate(self.refs[i], self.points[j], Hypotheses(), cfg.icp)
             else:
-                hyp = Hypotheses((Estimate.pose("map", seed_T, covariance=rel_ref),))
-                icp = cfg.icp if sigma >= cfg.fallback_sigma_m else self.seeded_cfg
+                if sigma >= cfg.fallback_sigma_m:
+                    seed_cov = cfg.fallback_inflation**2 * rel_ref
+                    icp = self.fallback_cfg if cfg.fallback_inflation > 1.0 else cfg.icp
+                else:
+                    seed_cov, icp = rel_ref, self.seeded_cfg
+                hyp = Hypotheses((Estimate.pose("map", seed_T, covariance=seed_cov),))
                 est = estimate(self.refs[i], self.points[j], hyp, icp)
             self.seconds["icp"] += time.perf_counter() - t0
             ok = _full_position(est)

@@ -58,6 +58,9 @@ class MapConfig:
         (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment). The
         default (= ``global_sigma_m``) never falls back: with 0.3 m the ACES log gained wrong closures in its
         corridors (loop relations 1.4 m → 5.2 m, docs/mapping.md).
+    fallback_inflation
+        The seed's covariance given to a closure that may fall back is inflated by this factor squared (σ × it),
+        and (with a factor above 1) its search stays in the window that seed bounds (the step's ``widen`` off).
     refine_scans
         Align every scan that is not a place to its place with the ICP step (seeded by the odometry offset) and
         hang it there by the ICP pose and covariance when reliable; otherwise (or False) by the odometry offset
@@ -83,6 +86,7 @@ class MapConfig:
     loop_every: int = 2
     global_sigma_m: float = 1.0
     fallback_sigma_m: float = 1.0
+    fallback_inflation: float = 1.0
     refine_scans: bool = True
     robust: str = "gnc"
     robust_scale: float = 3.0
@@ -90,7 +94,7 @@ class MapConfig:
 
     def __post_init__(self) -> None:
         positive = ("place_spacing_m", "place_turn_rad", "loop_max_search_m", "loop_max_heading_rad", "global_sigma_m")
-        for name in (*positive, "fallback_sigma_m", "robust_scale"):
+        for name in (*positive, "fallback_sigma_m", "fallback_inflation", "robust_scale"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0.0 and math.isfinite(v)):
                 raise ConfigError(f"mapping.{name} must be a finite number > 0, got {v!r}")
