@@ -51,16 +51,18 @@ class MapConfig:
         Loop closures are searched at every ``loop_every``-th place.
     global_sigma_m
         When the relative position σ of a candidate exceeds this, its ICP runs without the graph's seed (the
-        step's global search) instead of seeded by it.
+        step's global search over the whole circle) instead of seeded by it. The default never does in
+        practice: on ACES the seedless proposals at corridor junctions were turned by ~90° (GNC switched them
+        off, docs/mapping.md); far closures use the fallback's window instead.
     fallback_sigma_m
         A seeded closure whose relative position σ is at least this falls back to the step's global search in
         the seed's window when the seeded alignment is unreliable (the step's own rule); below it, it does not
-        (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment). The
-        default (= ``global_sigma_m``) never falls back: with 0.3 m the ACES log gained wrong closures in its
-        corridors (loop relations 1.4 m → 5.2 m, docs/mapping.md).
+        (the seeded basin covers the seed's region, and the search costs ~100× a seeded alignment).
     fallback_inflation
-        The seed's covariance given to a closure that may fall back is inflated by this factor squared (σ × it),
-        and (with a factor above 1) its search stays in the window that seed bounds (the step's ``widen`` off).
+        The seed's covariance given to a closure that may fall back is inflated by this factor squared (σ × it:
+        the streaming marginal is over-confident after a long corridor loop), and (with a factor above 1) its
+        search stays in the window that seed bounds (the step's ``widen`` off; widened, ACES gained wrong
+        closures: loop relations 1.0 m → 5.2 m, docs/mapping.md).
     refine_scans
         Align every scan that is not a place to its place with the ICP step (seeded by the odometry offset) and
         hang it there by the ICP pose and covariance when reliable; otherwise (or False) by the odometry offset
@@ -84,9 +86,9 @@ class MapConfig:
     loop_max_heading_rad: float = math.radians(60.0)
     loop_max_candidates: int = 3
     loop_every: int = 2
-    global_sigma_m: float = 1.0
-    fallback_sigma_m: float = 1.0
-    fallback_inflation: float = 1.0
+    global_sigma_m: float = 100.0
+    fallback_sigma_m: float = 0.3
+    fallback_inflation: float = 3.0
     refine_scans: bool = True
     robust: str = "gnc"
     robust_scale: float = 3.0
