@@ -93,7 +93,6 @@ def test_bad_input_raises() -> None:
         MapConfig(place_spacing_m=0.0)
 
 
-@pytest.mark.slow
 def test_a_prefix_of_the_intel_log_beats_its_odometry(shared_data: Path) -> None:
     from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
     from factorloc.evaluation.map_relations import map_relations
