@@ -6,13 +6,16 @@ The robot's run (a :class:`~factorloc.datasets.rosbag.LaserLog`: odometry and la
 
 * **consecutive places** are linked by the odometry (a between-factor whose σ is the
   :class:`~factorloc.odometry_model.OdometryModel`'s for the path between them) and by the ICP step
-  (:func:`factorloc.estimators.icp.estimate`, seeded by that odometry) when its typed verdict is reliable, with
-  its covariance;
+  (:func:`factorloc.estimators.icp.estimate`, seeded by that odometry; its global search, when it runs, stays
+  in the window the odometry bounds: these links are the back end's known inliers) when its typed verdict is
+  reliable, with its covariance;
 * **loop closures** are proposed by pose proximity in the streaming estimate (iSAM2, Kaess et al. 2012): older
   places (at least ``loop_min_path_m`` of path behind) within ``loop_radius_m`` + 3σ of the new place's marginal
-  position σ. Each is verified by the ICP step seeded with the graph's relative pose and its covariance (joint
-  marginal of the two places), or by its global search when that σ exceeds ``global_sigma_m``; a reliable one is
-  added with the step's covariance, robustified (Cauchy) in the streaming graph;
+  position σ, facing the same way. Each is verified by the ICP step seeded with the graph's relative pose and its
+  covariance (joint marginal of the two places): seeded only when that σ is below ``fallback_sigma_m``; else
+  with the seed's covariance inflated by ``fallback_inflation`` and the step's global search in the window it
+  bounds (or, beyond ``global_sigma_m``, without a seed). A reliable one is added with the step's covariance,
+  robustified (Cauchy) in the streaming graph;
 * **the back end** at the end is a batch optimization from the streaming estimate: GTSAM's graduated
   non-convexity (Yang et al., "Graduated non-convexity for robust spatial perception", RA-L 2020; truncated
   least squares, the odometry and consecutive-scan factors known inliers) so that a wrong closure is switched
@@ -209,7 +212,7 @@ class _Builder:
         new = [_Link("odometry", j - 1, j, delta, odo_cov)]
         t0 = time.perf_counter()
         seed = Estimate.pose("odometry", delta, covariance=odo_cov)
-        est = estimate(self.refs[j - 1], self.points[j], Hypotheses((seed,)), cfg.icp)
+        est = estimate(self.refs[j - 1], self.points[j], Hypotheses((seed,)), self.fallback_cfg)  # never widened
         self.seconds["icp"] += time.perf_counter() - t0
         step = delta
         if _full_position(est):
