@@ -46,6 +46,7 @@ def summarize(results: Sequence[RelationResult], dataset: str = "") -> list[dict
     """
     rows = []
     methods = [m for m in METHODS if any(r.method == m for r in results)]
+    methods += [m for m in dict.fromkeys(r.method for r in results) if m not in METHODS]  # e.g. "map"
     for m in methods:
         for subset in ("local", "loop", "all"):
             rs = [r for r in results if r.method == m and (subset == "all" or r.kind == subset)]

@@ -12,8 +12,10 @@ from collections.abc import Sequence
 import numpy as np
 
 from factorloc._validate import nonnegative_float, positive_float, positive_int
+from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
+from factorloc.sim.motion import DriftModel
 from factorloc.sim.raycast import FACE, cast_all
 from factorloc.sim.world import Obstacle, World
 from factorloc.types import Scan
@@ -186,3 +188,51 @@ def _lidar_systematic(
     p = np.minimum(1.0, (spot_exit_m + divergence_rad * r_edge) / np.maximum(r_edge * spacing_rad, 1e-9))
     mixed = keep & near & (u_mix < p)
     return np.where(mixed, out[nb] + u_pos * (out - out[nb]), out)
+
+
+def simulate_laser_log(
+    world: World,
+    trajectory: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    scan_every: int = 2,
+    dt_s: float = 0.1,
+    n_beams: int = 360,
+    max_range_m: float = 10.0,
+    drift: DriftModel | None = None,
+    pose_sigma_m: float = SCAN_POSE_SIGMA_M,
+    pose_sigma_rad: float = SCAN_POSE_SIGMA_RAD,
+) -> tuple[LaserLog, np.ndarray]:
+    """A simulated run along ``trajectory`` (N×3 true poses, world frame): drifting odometry at every pose and a
+    :func:`render_scan` (with the real-scanner error model) at every ``scan_every``-th, ``dt_s`` apart.
+
+    ``pose_sigma_m`` / ``pose_sigma_rad`` are :func:`render_scan`'s sensor-pose error (per scan, unobservable:
+    with it no estimator can place a scan nearer its true pose than that error). Returns the
+    :class:`~factorloc.datasets.rosbag.LaserLog` (odometry frame = the world at the first pose,
+    where the odometry is reset) and the (M, 3) true poses of its scans.
+    """
+    from factorloc.datasets.rosbag import OdometryTrack, ScanTrack
+    from factorloc.sim.motion import simulate_odometry  # noqa: PLC0415
+
+    traj = np.asarray(trajectory, dtype=np.float64)
+    if traj.ndim != 2 or traj.shape[1] != 3 or len(traj) < 2:
+        raise InputError(f"trajectory must be N×3 with N >= 2, got shape {traj.shape}")
+    every = positive_int("scan_every", scan_every)
+    dt = positive_float("dt_s", dt_s)
+    run = simulate_odometry(traj, rng, drift or DriftModel())
+    stamps = np.arange(len(traj)) * dt
+    picks = np.arange(0, len(traj), every)
+    scans = tuple(
+        render_scan(
+            world,
+            Pose2.from_array(traj[k]),
+            n_beams,
+            max_range_m=max_range_m,
+            rng=rng,
+            pose_sigma_m=pose_sigma_m,
+            pose_sigma_rad=pose_sigma_rad,
+        )
+        for k in picks
+    )
+    log = LaserLog(OdometryTrack(stamps, run.poses), ScanTrack(stamps[picks], scans), f"sim:{world.name}")
+    return log, traj[picks].copy()

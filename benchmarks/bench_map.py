@@ -1,0 +1,112 @@
+"""Benchmark of the mapping (:func:`factorloc.mapping.build_map`) on a real laser log: the relations metric of
+Kümmerle et al. (2009) on the map's trajectory of every scan, beside the odometry alone and the published
+graph-mapping figures, with the share of relations beyond 3σ of the map's own covariance of that relation,
+and the wall time of the mapping.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_map.py --log intel              # the whole Intel log
+    taskset -c 0 .venv/bin/python benchmarks/bench_map.py --log intel # on one core (the ≤ 90 s target)
+    .venv/bin/python benchmarks/bench_map.py --log aces --max-scans 2000 --set loop_every=2
+    .venv/bin/python benchmarks/bench_map.py --log mit --pairwise     # + today's pairwise "ours" (minutes)
+
+``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
+from factorloc.evaluation.map_relations import map_relations
+from factorloc.evaluation.relations import Relations, format_table, read_relations, relations_benchmark, summarize
+from factorloc.mapping import MapConfig, build_map
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
+NAMES = {"intel": "intel", "aces": "aces", "mit": "mit-csail", "mit-csail": "mit-csail"}
+#: Best graph mapping on all relations, Kümmerle et al. (2009) metric, as quoted by Hess et al. (ICRA 2016) beside
+#: Cartographer's: (translation mean, std in cm; rotation mean, std in deg; None where not quoted).
+PUBLISHED = {
+    "intel": (3.1, 2.6, 1.3, 4.7),
+    "aces": (4.4, 4.4, 0.4, 0.4),
+    "mit-csail": (0.4, 0.9, None, None),
+}
+
+
+def _prefix(log: LaserLog, rel: Relations, max_scans: int | None) -> tuple[LaserLog, Relations]:
+    """The first ``max_scans`` scans and the relations inside them."""
+    if max_scans is None or max_scans >= len(log.scans):
+        return log, rel
+    scans = ScanTrack(log.scans.stamps_s[:max_scans], log.scans.scans[:max_scans])
+    t_end = float(scans.stamps_s[-1])
+    keep = (rel.t1_s <= t_end) & (rel.t2_s <= t_end)
+    return LaserLog(log.odometry, scans, log.source), Relations(rel.t1_s[keep], rel.t2_s[keep], rel.poses[keep])
+
+
+def _overrides(items: list[str]) -> dict:
+    out = {}
+    for item in items:
+        k, _, v = item.partition("=")
+        try:
+            out[k] = ast.literal_eval(v)
+        except (ValueError, SyntaxError):
+            out[k] = v
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--log", required=True, choices=sorted(NAMES))
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--max-scans", type=int, default=None, help="map only the first N scans (and their relations)")
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a MapConfig field")
+    ap.add_argument("--pairwise", action="store_true", help="also run today's pairwise 'ours' on every relation")
+    ap.add_argument("--json", type=Path, default=None, help="write the summary rows and stats as JSON")
+    args = ap.parse_args()
+    name = NAMES[args.log]
+    log = read_laser_log(args.data / f"{name}.sort.bag")
+    rel = read_relations(args.data / f"{name}.relations")
+    log, rel = _prefix(log, rel, args.max_scans)
+    config = MapConfig(**_overrides(args.set))
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = build_map(log, config)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    rows = map_relations(result, rel, log)
+    methods = ["odometry"] + (["ours"] if args.pairwise else [])
+    base = relations_benchmark(log, rel, methods=methods)
+    table = summarize(base + rows, name)
+    print(format_table(table))
+    pub = PUBLISHED[name]
+    rot = "" if pub[2] is None else f" / {pub[2]} ± {pub[3]} deg"
+    print(f"\npublished best graph mapping ({name}, all relations): {pub[0]} ± {pub[1]} cm{rot}")
+    m = next(r for r in table if r["method"] == "map" and r["subset"] == "all")
+    print(
+        f"map ({name}, all {m['n']} relations): {m['trans_mean_cm']:.2f} ± {m['trans_std_cm']:.2f} cm / "
+        f"{m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f} deg; beyond 3σ of the map's covariance: "
+        f"{100 * m['confidently_wrong_rate']:.2f} %"
+    )
+    s = result.stats
+    print(
+        f"{s['places']} places of {len(log.scans)} scans, {s['scan_factors']} consecutive ICP links, "
+        f"{s['closures_accepted']} closures accepted / {s['closures_reliable']} reliable / {s['closures_proposed']} "
+        f"proposed, {s['scans_refined']} scans refined; wall time {wall:.1f} s, CPU time {cpu:.1f} s "
+        f"(ICP {s['seconds_icp']:.1f}, iSAM2 {s['seconds_isam']:.1f}, batch {s['seconds_batch']:.1f}, "
+        f"marginals {s['seconds_marginals']:.1f}, scans {s['seconds_scans']:.1f})"
+    )
+    if args.json is not None:
+        d2 = np.array([r.nees_position for r in rows])
+        args.json.write_text(
+            json.dumps(
+                {"rows": table, "stats": s, "wall_s": wall, "cpu_s": cpu, "mahalanobis2_median": float(np.median(d2))}, indent=1
+            )
+        )
+
+
+if __name__ == "__main__":
+    main()
