@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from factorloc._json import json_ready
-from factorloc._validate import float_array, positive_float
+from factorloc._validate import MIN_CORRELATION_EIGENVALUE, SIGMA_MAX, SIGMA_MIN, float_array, sigma_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types.components import ALLOWED_COMPONENTS, FULL, HEADING, POSITION, Component, component_set
@@ -40,15 +40,42 @@ def _cholesky_pivots(c: list[list[float]]) -> list[float]:
 
 
 def _covariance(name: str, value: Any, k: int) -> np.ndarray:
+    """The k×k covariance ``value``, checked: symmetric, positive definite, every σ (the square root of a diagonal
+    term) in [SIGMA_MIN, SIGMA_MAX] (:mod:`factorloc._validate`) and correlations away from ±1
+    (:data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`). Checked before any arithmetic on it, so nothing
+    overflows (the symmetrized mean is taken as ``0.5·a + 0.5·b``)."""
     cov = float_array(name, value, (k, k))
+    diag = np.diagonal(cov)
+    bad = [i for i in range(k) if diag[i] > 0.0 and not SIGMA_MIN**2 <= diag[i] <= SIGMA_MAX**2]  # ≤ 0: not PD, below
+    if bad:
+        raise InputError(
+            f"{name}[{bad[0]}][{bad[0]}] must be a variance whose σ is in [{SIGMA_MIN:g}, {SIGMA_MAX:g}] (m or rad), "
+            f"got {float(diag[bad[0]])!r}"
+        )
     if (np.abs(cov - cov.T) > 1e-15 + 1e-9 * np.abs(cov.T)).any():  # np.allclose(rtol=1e-9, atol=1e-15), cheaper
         raise InputError(f"{name} must be symmetric, got {cov.tolist()}")
-    cov = 0.5 * (cov + cov.T)
+    cov = 0.5 * cov + 0.5 * cov.T
     if not all(p > 0.0 for p in _cholesky_pivots(cov.tolist())):
-        eig = np.linalg.eigvalsh(cov)
-        raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig.tolist()}")
+        with np.errstate(all="ignore"):
+            eig = np.linalg.eigvalsh(cov).tolist() if np.abs(cov).max() <= SIGMA_MAX**2 else "(entries beyond σ² range)"
+        raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig}")
+    if k > 1:
+        scale = 1.0 / np.sqrt(np.diagonal(cov))
+        corr_min = float(np.linalg.eigvalsh(cov * np.outer(scale, scale))[0])
+        if corr_min < MIN_CORRELATION_EIGENVALUE:
+            raise InputError(
+                f"{name} is too close to singular: its correlation matrix has eigenvalue {corr_min:.3g} "
+                f"< {MIN_CORRELATION_EIGENVALUE:g} (a correlation of ±1)"
+            )
     cov.setflags(write=False)
     return cov
+
+
+def _json_bool(name: str, value: Any) -> bool:
+    """A JSON boolean (``true``/``false``; numpy's bool too), not a string or a number read as truthy."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise InputError(f"{name} must be a JSON boolean (true or false), got {type(value).__name__} {value!r}")
 
 
 # --------------------------------------------------------------------------
@@ -128,7 +155,7 @@ class Estimate:
     @classmethod
     def heading(cls, step: str, theta_rad: float, sigma_rad: float, **kwargs: Any) -> Estimate:
         """A heading-only estimate θ ± σ (radians)."""
-        s = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_rad)
+        s = sigma_float(f"Estimate({step}).sigma_theta_rad", sigma_rad)
         return cls(step, HEADING, [theta_rad], [[s * s]], **kwargs)
 
     @classmethod
@@ -145,8 +172,8 @@ class Estimate:
     ) -> Estimate:
         """A position-only estimate (world-frame x, y) from sigmas or a 2×2 covariance."""
         if covariance is None:
-            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
-            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            sx = sigma_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = sigma_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
             covariance = np.diag([sx * sx, sy * sy])
         return cls(step, POSITION, [x_m, y_m], covariance, **kwargs)
 
@@ -164,9 +191,9 @@ class Estimate:
     ) -> Estimate:
         """A full-pose estimate from per-axis sigmas or a 3×3 world-frame covariance."""
         if covariance is None:
-            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
-            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
-            st = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_theta_rad)
+            sx = sigma_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = sigma_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            st = sigma_float(f"Estimate({step}).sigma_theta_rad", sigma_theta_rad)
             covariance = np.diag([sx * sx, sy * sy, st * st])
         return cls(step, FULL, pose.as_array(), covariance, **kwargs)
 
@@ -251,8 +278,8 @@ class Estimate:
             cov = data["covariance"]
         elif "sigmas" in data:
             sig = float_array(f"Estimate({data['step']}).sigmas", data["sigmas"], (len(data["values"]),))
-            if np.any(sig <= 0):
-                raise InputError(f"Estimate({data['step']}).sigmas must be > 0, got {sig.tolist()}")
+            for i, s in enumerate(sig):
+                sigma_float(f"Estimate({data['step']}).sigmas[{i}]", s)
             cov = np.diag(sig**2)
         else:
             raise InputError(f"estimate '{data['step']}' needs 'covariance' or 'sigmas'")
@@ -261,7 +288,7 @@ class Estimate:
             components=tuple(data["components"]),
             values=data["values"],
             covariance=cov,
-            reliable=data.get("reliable", True),
+            reliable=_json_bool(f"Estimate({data['step']}).reliable", data.get("reliable", True)),
             reason=data.get("reason", ""),
             diagnostics=data.get("diagnostics", {}),
             checks=tuple(Check.from_dict(c) for c in data.get("checks") or ()),
