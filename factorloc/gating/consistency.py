@@ -175,23 +175,23 @@ def _gate_group(
         lam_z = np.stack(
             [lam[:, 0] * vals[:, 0] + lam[:, 1] * vals[:, 1], lam[:, 1] * vals[:, 0] + lam[:, 2] * vals[:, 1]], axis=1
         )
-    active = list(range(n))
-    round_d2: dict[int, float] = {}
-    while len(active) >= 2:
-        rows = np.array(active)
+    alive = np.ones(n, dtype=bool)
+    last: tuple[np.ndarray, np.ndarray] | None = None  # (rows, d²) of the last complete round
+    while alive.sum() >= 2:
+        rows = np.flatnonzero(alive)
         mean_o, cov_o = _others(rows, vals, covs, lam, lam_z)
         d2 = _d2(vals[rows], covs[rows], mean_o, cov_o, is_heading)
-        round_d2 = {i: float(x) for i, x in zip(active, d2.tolist(), strict=True)}
         worst, worst_d2 = None, threshold
-        for i in active:
-            if round_d2[i] > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
-                worst, worst_d2 = i, round_d2[i]
+        for j in np.flatnonzero(d2 > threshold * (1.0 + 1e-6)).tolist():  # only these can be the worst
+            if d2[j] > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
+                worst, worst_d2 = int(rows[j]), float(d2[j])
         if worst is None:
+            last = (rows, d2)
             break
         rejected[worst] = worst_d2
         d2s[worst] = worst_d2
-        active.remove(worst)
-        round_d2 = {}
+        alive[worst] = False
+    round_d2 = {} if last is None else dict(zip(last[0].tolist(), last[1].tolist(), strict=True))
     d2s.update(round_d2)  # the last complete round's distances of the survivors
     return rejected, d2s
 
