@@ -268,31 +268,62 @@ class Estimate:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Estimate:
-        """Inverse of :meth:`to_dict`; ``sigmas`` may replace ``covariance``."""
+        """Inverse of :meth:`to_dict`; ``sigmas`` may replace ``covariance``.
+
+        Every field is type-checked: a malformed one raises :class:`InputError` naming the estimate and the field
+        (never a ``TypeError`` or ``KeyError`` from deeper down).
+        """
         if not isinstance(data, Mapping):
             raise InputError(f"an estimate must be a JSON object, got {type(data).__name__}")
         for key in ("step", "components", "values"):
             if key not in data:
-                raise InputError(f"estimate is missing the field '{key}': {dict(data)!r}")
+                raise InputError(f"estimate is missing the field '{key}': {dict(data)!r}"[:300])
+        step = data["step"]
+        if not isinstance(step, str) or not step:
+            raise InputError(f"estimate field 'step' must be a non-empty string, got {step!r}"[:200])
+        where = f"Estimate({step})"
+        comps = data["components"]
+        if not isinstance(comps, (list, tuple)) or not all(isinstance(c, str) for c in comps):
+            raise InputError(f"{where}.components must be a list of component names, got {comps!r}"[:200])
+        values = data["values"]
+        if not isinstance(values, (list, tuple)):
+            raise InputError(f"{where}.values must be a list of numbers, got {type(values).__name__}")
         if "covariance" in data:
             cov = data["covariance"]
         elif "sigmas" in data:
-            sig = float_array(f"Estimate({data['step']}).sigmas", data["sigmas"], (len(data["values"]),))
+            sig = float_array(f"{where}.sigmas", data["sigmas"], (len(values),))
             for i, s in enumerate(sig):
-                sigma_float(f"Estimate({data['step']}).sigmas[{i}]", s)
+                sigma_float(f"{where}.sigmas[{i}]", s)
             cov = np.diag(sig**2)
         else:
-            raise InputError(f"estimate '{data['step']}' needs 'covariance' or 'sigmas'")
+            raise InputError(f"estimate '{step}' needs 'covariance' or 'sigmas'")
+        checks_data, seed_data = data.get("checks") or (), data.get("seed")
+        try:
+            if not isinstance(checks_data, (list, tuple)):
+                raise TypeError(f"a list, got {type(checks_data).__name__}")
+            checks = tuple(Check.from_dict(c) for c in checks_data)
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            raise InputError(f"{where}.checks must be a list of checks as to_dict writes them: {exc}"[:300]) from exc
+        try:
+            seed = None if seed_data is None else SeedEvidence.from_dict(seed_data)
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            raise InputError(f"{where}.seed must be a seed record as to_dict writes it: {exc}"[:300]) from exc
+        diagnostics = data.get("diagnostics", {})
+        if not isinstance(diagnostics, Mapping):
+            raise InputError(f"{where}.diagnostics must be an object, got {type(diagnostics).__name__}")
+        reason = data.get("reason", "")
+        if not isinstance(reason, str):
+            raise InputError(f"{where}.reason must be a string, got {type(reason).__name__}")
         return cls(
-            step=data["step"],
-            components=tuple(data["components"]),
-            values=data["values"],
+            step=step,
+            components=tuple(comps),
+            values=values,
             covariance=cov,
-            reliable=_json_bool(f"Estimate({data['step']}).reliable", data.get("reliable", True)),
-            reason=data.get("reason", ""),
-            diagnostics=data.get("diagnostics", {}),
-            checks=tuple(Check.from_dict(c) for c in data.get("checks") or ()),
-            seed=None if data.get("seed") is None else SeedEvidence.from_dict(data["seed"]),
+            reliable=_json_bool(f"{where}.reliable", data.get("reliable", True)),
+            reason=reason,
+            diagnostics=diagnostics,
+            checks=checks,
+            seed=seed,
         )
 
     def __eq__(self, other: object) -> bool:
