@@ -37,7 +37,7 @@ def _npy_header(f: IO[bytes], where: str) -> tuple[tuple[int, ...], np.dtype]:
             shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
         else:
             raise ValueError(f"unknown .npy version {version}")
-    except (ValueError, OSError, SyntaxError, EOFError) as exc:
+    except Exception as exc:  # noqa: BLE001 - numpy parses the header with ast/tokenize: ValueError, SyntaxError, TokenError…
         raise DatasetError(f"{where}: not a readable .npy array: {' '.join(str(exc).split())[:200]}") from exc
     if dtype.hasobject or dtype.kind not in "iuf":
         raise DatasetError(f"{where}: must hold numbers, got dtype {dtype}")

@@ -140,3 +140,13 @@ def test_a_corrupt_ply_in_a_scenario_names_the_field(sample):
     _replace(sample, "    points: 360\n", "\n")  # the scan's count is the PLY's business here
     with pytest.raises(DatasetError, match=r"field 'queries\[0\].scan.file'.*header says 5 vertices"):
         load_scenario(sample)
+
+
+def test_a_npy_header_that_does_not_parse_is_a_dataset_error(tmp_path):  # found by the fuzz suite (a TokenError)
+    p = tmp_path / "scan.npy"
+    np.save(p, np.zeros((4, 2)))
+    raw = bytearray(p.read_bytes())
+    raw[raw.index(b"{")] = ord("(")  # the header dict opens with a parenthesis it never closes
+    p.write_bytes(bytes(raw))
+    with pytest.raises(DatasetError, match="not a readable .npy array"):
+        read_npy(p)
