@@ -21,6 +21,7 @@ from factorloc.errors import InputError
 
 __all__ = [
     "MAX_ANGLE_MARGIN_RAD",
+    "MAX_COORDINATE_M",
     "MIN_CORRELATION_EIGENVALUE",
     "SIGMA_MAX",
     "SIGMA_MIN",
@@ -51,6 +52,10 @@ SIGMA_MAX = 1e6
 #: A covariance's correlation matrix (``D^-1/2 Σ D^-1/2``) must have its smallest eigenvalue at least this
 #: large: a correlation closer to ±1 than 1 - 5e-13 makes the inverse (the information) meaningless.
 MIN_CORRELATION_EIGENVALUE = 1e-12
+#: The largest absolute coordinate (m) of a position estimate or a registered point: at 1e9 m a double still
+#: resolves 1.2e-7 m; at 1e16 m its spacing is 2 m, so a σ of centimetres could not be honest. One home for the
+#: estimates (:class:`~factorloc.types.Estimate`) and the registration (``factorloc.registration.prepared``).
+MAX_COORDINATE_M = 1e9
 #: A field of view (camera hfov, panorama fov_v) lies in [MARGIN, π - MARGIN]: at 0 the focal length is
 #: infinite, at π zero (``f = (W/2) / tan(fov/2)``).
 MAX_ANGLE_MARGIN_RAD = 1e-3

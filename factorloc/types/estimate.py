@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from factorloc._json import json_ready
-from factorloc._validate import MIN_CORRELATION_EIGENVALUE, SIGMA_MAX, SIGMA_MIN, float_array, sigma_float
+from factorloc._validate import MAX_COORDINATE_M, MIN_CORRELATION_EIGENVALUE, SIGMA_MAX, SIGMA_MIN, float_array, sigma_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types.components import ALLOWED_COMPONENTS, FULL, HEADING, POSITION, Component, component_set
@@ -132,6 +132,11 @@ class Estimate:
         values = np.array(float_array(f"Estimate({self.step}).values", self.values, (k,)))
         if comps[-1] is Component.THETA:
             values[-1] = wrap_angle(values[-1])
+        if k >= 2 and not float(np.abs(values[:2]).max()) <= MAX_COORDINATE_M:
+            raise InputError(
+                f"Estimate({self.step}).values: position ({values[0]!r}, {values[1]!r}) m is beyond the documented "
+                f"coordinate range ±{MAX_COORDINATE_M:g} m"
+            )
         values.setflags(write=False)
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "covariance", _covariance(f"Estimate({self.step}).covariance", self.covariance, k))

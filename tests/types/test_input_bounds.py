@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import factorloc as fl
-from factorloc._validate import SIGMA_MAX, SIGMA_MIN, number_problem
+from factorloc._validate import MAX_COORDINATE_M, SIGMA_MAX, SIGMA_MIN, number_problem
 from factorloc.errors import InputError
 from factorloc.geometry import wrap_angle
 
@@ -91,3 +91,12 @@ def test_reliable_must_be_a_json_boolean(value):  # reproducer 7
 def test_huge_integers_are_a_problem_not_an_overflow():
     assert "finite" in number_problem(10**400)
     assert len(number_problem(10**400)) < 200  # the value is shortened in the message
+
+
+def test_position_estimates_stay_within_the_documented_coordinate_range():
+    # at 1e16 m the spacing of doubles is 2 m: a σ of 1 m there was reported as if it held
+    with pytest.raises(InputError, match=r"beyond the documented coordinate range ±1e\+09 m"):
+        fl.Estimate.position("a", 1e16, 0.0, 1.0, 1.0)
+    with pytest.raises(InputError, match="coordinate range"):
+        fl.Estimate.pose("a", fl.Pose2(0.0, -1e300, 0.0), 1.0, 1.0, 1.0)
+    assert fl.Estimate.position("a", MAX_COORDINATE_M, -MAX_COORDINATE_M, 1.0, 1.0).values.tolist() == [1e9, -1e9]
