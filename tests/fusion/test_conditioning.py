@@ -58,3 +58,20 @@ def test_gtsam_and_numpy_failures_become_fusion_errors():
 def test_information_is_exact_across_the_sigma_range():
     cov = np.diag([1e-18, 1e12])
     assert np.array_equal(information(cov), np.diag([1e18, 1e-12]))
+
+
+def test_a_smoother_failure_in_gtsam_is_a_fusion_error(monkeypatch):
+    from factorloc.fusion import TrajectorySmoother
+
+    smoother = TrajectorySmoother()
+    smoother.reset()
+    est = fl.Estimate.pose("odometry", fl.Pose2(1, 1, 0.1), 0.1, 0.1, 0.05)
+    reports = fl.fuse([est]).steps
+    query = fl.Query(odometry=fl.Odometry(fl.Pose2(1, 1, 0.1), 0.1, 0.1, 0.05))
+
+    def boom(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        raise RuntimeError("Indeterminate linear system detected while working near variable 0")
+
+    monkeypatch.setattr(smoother, "_solve", boom)
+    with pytest.raises(FusionError, match=r"smoother fusion of estimates \['odometry'\] failed: RuntimeError"):
+        smoother.update(query, reports)
