@@ -117,13 +117,13 @@ def query_cloud_of_1e6_points() -> str:
     return _localize(fl.Query(cloud=fl.PointCloud(pts), odometry=q.odometry), s.reference)
 
 
-def _fuse(n: int) -> str:
+def _fuse(n: int, outlier_every: int = 10) -> str:
     import factorloc as fl
 
     rng = np.random.default_rng(2)
     ests = []
     for i in range(n):
-        spread = 1.0 if i % 10 == 0 else 0.01
+        spread = 1.0 if i % outlier_every == 0 else 0.01
         ests.append(fl.Estimate.pose(f"e{i}", fl.Pose2(*rng.normal(0.0, spread, 3)), 0.01, 0.01, 0.01))
     loc = fl.fuse(ests)
     fused = sum(r.status.value == "fused" for r in loc.steps)
@@ -138,6 +138,12 @@ def fuse_1000_estimates() -> str:
 @case
 def fuse_5000_estimates() -> str:
     return _fuse(5000)
+
+
+@case
+def fuse_3000_mutually_inconsistent() -> str:
+    """The gate's worst case: every estimate disagrees with every other, so it rejects them one round at a time."""
+    return _fuse(3000, outlier_every=1)
 
 
 def _damaged(edit: Callable[[Path], None]) -> str:

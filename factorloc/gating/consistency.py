@@ -182,7 +182,10 @@ def _gate_group(
         mean_o, cov_o = _others(rows, vals, covs, lam, lam_z)
         d2 = _d2(vals[rows], covs[rows], mean_o, cov_o, is_heading)
         worst, worst_d2 = None, threshold
-        for j in np.flatnonzero(d2 > threshold * (1.0 + 1e-6)).tolist():  # only these can be the worst
+        # the scan below keeps worst_d2 ≥ (max so far) / (1 + 1e-6), so only a strict new maximum of the prefix can
+        # replace it: scanning just those (O(log m) for a random order) gives the same pick as scanning all
+        before = np.concatenate([[-np.inf], np.maximum.accumulate(d2)[:-1]])
+        for j in np.flatnonzero((d2 > before) & (d2 > threshold * (1.0 + 1e-6))).tolist():
             if d2[j] > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
                 worst, worst_d2 = int(rows[j]), float(d2[j])
         if worst is None:
