@@ -31,7 +31,7 @@ print("\n".join(diff) or "  none")
 endef
 export LOCK_DIFF
 
-.PHONY: setup demo test docs docs-serve browser lint bench clean lock test-latest
+.PHONY: setup demo test docs docs-serve browser lint bench clean lock test-latest fuzz
 
 # System libraries Open3D's wheel needs, the virtual environment, the package.
 $(STAMP): pyproject.toml $(LOCK)
@@ -73,6 +73,11 @@ docs-serve: setup
 
 test: lint docs
 	FACTORLOC_REQUIRE_SITE=1 $(BIN)/python -m pytest -n 2 -q
+
+# The fuzz suite at length (tests/fuzz, issue #21: >= 10,000 generated cases; `make test` runs a few dozen per
+# property): prints the tally of typed errors / escaped exceptions / crashes / silent results / sensible results
+fuzz: setup
+	HYPOTHESIS_PROFILE=fuzz nice -n 10 $(BIN)/python -m pytest -q -p no:xdist tests/fuzz
 
 # ruff with the complexity limits of pyproject.toml (C901, PLR0912, PLR0915), and the formatting
 lint: setup

@@ -20,6 +20,12 @@ import numpy as np
 from factorloc.errors import InputError
 
 __all__ = [
+    "MAX_ANGLE_MARGIN_RAD",
+    "MAX_COORDINATE_M",
+    "MIN_CORRELATION_EIGENVALUE",
+    "SIGMA_MAX",
+    "SIGMA_MIN",
+    "angle_of_view",
     "bgr_image",
     "construct",
     "finite_float",
@@ -32,7 +38,33 @@ __all__ = [
     "positive_float",
     "positive_int",
     "sequence",
+    "sigma_float",
+    "sigma_problem",
 ]
+
+#: The smallest standard deviation an input may carry (metres for positions, radians for headings).
+#: Below it a variance (≤ 1e-18) next to another one of the documented range makes the information matrix
+#: lose every digit of the larger variance (double precision keeps about 16).
+SIGMA_MIN = 1e-9
+#: The largest standard deviation an input may carry (m, rad): beyond it a value is not a measurement
+#: (and its variance, 1e12, stays far from overflow when multiplied or summed).
+SIGMA_MAX = 1e6
+#: A covariance's correlation matrix (``D^-1/2 Σ D^-1/2``) must have its smallest eigenvalue at least this
+#: large: a correlation closer to ±1 than 1 - 5e-13 makes the inverse (the information) meaningless.
+MIN_CORRELATION_EIGENVALUE = 1e-12
+#: The largest absolute coordinate (m) of a position estimate or a registered point: at 1e9 m a double still
+#: resolves 1.2e-7 m; at 1e16 m its spacing is 2 m, so a σ of centimetres could not be honest. One home for the
+#: estimates (:class:`~factorloc.types.Estimate`) and the registration (``factorloc.registration.prepared``).
+MAX_COORDINATE_M = 1e9
+#: A field of view (camera hfov, panorama fov_v) lies in [MARGIN, π - MARGIN]: at 0 the focal length is
+#: infinite, at π zero (``f = (W/2) / tan(fov/2)``).
+MAX_ANGLE_MARGIN_RAD = 1e-3
+
+
+def _short(value: Any, limit: int = 60) -> str:
+    """``repr(value)`` cut to ``limit`` characters (a 400-digit integer in a message is one line, not a page)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[: limit - 20]}…({len(text)} characters)"
 
 
 def number_problem(value: Any, *, positive: bool = False, nonnegative: bool = False) -> str:
@@ -41,11 +73,11 @@ def number_problem(value: Any, *, positive: bool = False, nonnegative: bool = Fa
     Booleans are not numbers; numpy scalars are.
     """
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        return f"must be a real number, got {type(value).__name__} {value!r}"
+        return f"must be a real number, got {type(value).__name__} {_short(value)}"
     try:
         out = float(value)
     except OverflowError:
-        return f"must be finite, got {value!r}"
+        return f"must be finite (a float), got {_short(value)}"
     if not math.isfinite(out):
         return f"must be finite, got {out!r}"
     if positive and out <= 0.0:
@@ -53,6 +85,35 @@ def number_problem(value: Any, *, positive: bool = False, nonnegative: bool = Fa
     if nonnegative and out < 0.0:
         return f"must be >= 0, got {out!r}"
     return ""
+
+
+def sigma_problem(value: Any) -> str:
+    """What is wrong with ``value`` as a standard deviation (a finite number in [SIGMA_MIN, SIGMA_MAX]), or ``""``."""
+    problem = number_problem(value, positive=True)
+    if problem:
+        return problem
+    out = float(value)
+    if not SIGMA_MIN <= out <= SIGMA_MAX:
+        return f"must be a standard deviation in [{SIGMA_MIN:g}, {SIGMA_MAX:g}] (m or rad), got {out!r}"
+    return ""
+
+
+def sigma_float(name: str, value: Any) -> float:
+    """Return ``value`` as a standard deviation in [:data:`SIGMA_MIN`, :data:`SIGMA_MAX`] or raise :class:`InputError`."""
+    problem = sigma_problem(value)
+    if problem:
+        raise InputError(f"{name} {problem}")
+    return float(value)
+
+
+def angle_of_view(name: str, value: Any) -> float:
+    """Return ``value`` as a field of view in [MARGIN, π - MARGIN] (:data:`MAX_ANGLE_MARGIN_RAD`) or raise."""
+    fov = positive_float(name, value)
+    if not MAX_ANGLE_MARGIN_RAD <= fov <= math.pi - MAX_ANGLE_MARGIN_RAD:
+        raise InputError(
+            f"{name} must be a field of view in [{MAX_ANGLE_MARGIN_RAD:g}, π - {MAX_ANGLE_MARGIN_RAD:g}] rad, got {fov!r}"
+        )
+    return fov
 
 
 def keys_problem(data: Mapping[str, Any], known: Collection[str]) -> str:

@@ -11,6 +11,8 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -30,7 +32,43 @@ from factorloc.cli_render import (
 )
 from factorloc.errors import FactorlocError, InputError
 
+
+class _OneLineErrors(typer.core.TyperGroup):
+    """The command group whose every error is one line on stderr: usage errors and library errors exit 2.
+
+    Click's usage errors (an unknown option, a bad value) would otherwise be drawn in a box wrapped to the
+    terminal's width; a library error escaping a command registered elsewhere (``cli_convert``, …) would be a
+    traceback. Any other exception is a bug: one line ``error: internal error: …``, exit 1
+    (``FACTORLOC_TRACEBACK=1`` shows the traceback).
+    """
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            rv = super().main(*args, standalone_mode=False, **kwargs)
+        except typer.Abort:
+            typer.echo("error: aborted", err=True)
+            sys.exit(1)
+        except FactorlocError as exc:
+            typer.echo(error_line(exc), err=True)
+            sys.exit(2)
+        except Exception as exc:
+            if hasattr(exc, "format_message") and isinstance(getattr(exc, "exit_code", None), int):  # click's usage errors
+                if type(exc).__name__ == "NoArgsIsHelpError":
+                    exc.show()  # type: ignore[attr-defined]
+                else:
+                    typer.echo("error: " + " ".join(exc.format_message().split()), err=True)  # type: ignore[attr-defined]
+                sys.exit(exc.exit_code)  # type: ignore[attr-defined]
+            if os.environ.get("FACTORLOC_TRACEBACK"):
+                raise
+            typer.echo(f"error: internal error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}", err=True)
+            sys.exit(1)
+        sys.exit(rv if isinstance(rv, int) else 0)
+
+
 app = typer.Typer(
+    cls=_OneLineErrors,
     name="factorloc",
     help="Localize a robot in the plane by fusing odometry, a visual compass, panorama correlation and ICP in a factor graph.",
     no_args_is_help=True,
@@ -88,7 +126,11 @@ def _load_estimates(path: Path) -> list[factorloc.Estimate]:
     if not path.is_file():
         raise InputError(f"estimates file not found: {path}")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path} is not UTF-8 text: {exc}") from exc
+    except RecursionError as exc:
+        raise InputError(f"{path} nests JSON too deep to be read") from exc
     except json.JSONDecodeError as exc:
         raise InputError(f"{path} is not valid JSON: {exc}") from exc
     items: Any = data.get("estimates") if isinstance(data, dict) else data

@@ -156,7 +156,7 @@ def convert(
             result = convert_bag(bag, config, truth, progress=progress)
         path = save_scenario(result.scenario, out, image_format=image_format, overwrite=overwrite)
     except FactorlocError as exc:
-        console.print(f"[bold red]error:[/] {exc}")
+        typer.echo("error: " + " ".join(str(exc).split()), err=True)  # one line, never wrapped (cli.error_line)
         raise typer.Exit(code=2) from None
     r = result.report
     cams = ", ".join(r.topics["cameras"]) or "none"

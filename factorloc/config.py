@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from factorloc._validate import keys_problem, number_problem
+from factorloc._yaml import load_yaml
 from factorloc.errors import ConfigError
 from factorloc.estimators.compass import CompassConfig
 from factorloc.estimators.correlation import CorrelationConfig
@@ -65,7 +66,9 @@ class Config:
         if not p.is_file():
             raise ConfigError(f"config file not found: {p}")
         try:
-            data = yaml.safe_load(p.read_text())
+            data = load_yaml(p.read_text(encoding="utf-8"))
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"config file {p} is not UTF-8 text: {exc}") from exc
         except yaml.YAMLError as exc:
             raise ConfigError(f"config file {p} is not valid YAML: {exc}") from exc
         if data is not None and not isinstance(data, dict):

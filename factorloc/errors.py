@@ -16,6 +16,12 @@ class InputError(FactorlocError, ValueError):
     """An input (array, image, pose, sigma, file) is malformed or out of range."""
 
 
+class UnusableInputError(InputError):
+    """An input a step needs is present but unusable (a reference cloud with nothing in the height band, a scan
+    beyond the search's reach): the pipeline reports the step ``skipped`` with ``unusable: <why>`` and a failed
+    ``<step>.inputs_usable`` check, not "inputs absent"."""
+
+
 class ConfigError(FactorlocError, ValueError):
     """A configuration value or key is invalid."""
 

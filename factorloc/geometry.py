@@ -22,8 +22,10 @@ def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     everywhere.
     """
     if isinstance(angle_rad, float):  # the common scalar case without numpy's call overhead; same arithmetic
-        return float(np.float64(angle_rad + math.pi) % (2.0 * math.pi) - math.pi)
+        out = float(np.float64(angle_rad + math.pi) % (2.0 * math.pi) - math.pi)
+        return -math.pi if out >= math.pi else out  # just below -π, the mod rounds up to 2π: map π to -π
     wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + math.pi, 2.0 * math.pi) - math.pi
+    wrapped = np.where(wrapped >= math.pi, -math.pi, wrapped)
     if np.ndim(wrapped) == 0:
         return float(wrapped)
     return wrapped
@@ -104,10 +106,16 @@ class Pose2:
     @classmethod
     def from_array(cls, values: np.ndarray | list[float] | tuple[float, ...]) -> Pose2:
         """Build from ``[x, y, theta]``."""
-        v = list(np.asarray(values, dtype=np.float64).ravel())
-        if len(v) != 3:
-            from factorloc.errors import InputError
+        from factorloc.errors import InputError
 
+        try:
+            arr = np.asarray(values)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"Pose2.from_array needs 3 numbers [x, y, theta]: {exc}") from exc
+        if arr.dtype.kind not in "iuf":  # like Pose2("1.0"): strings, objects and booleans are not numbers
+            raise InputError(f"Pose2.from_array needs 3 numbers [x, y, theta], got dtype {arr.dtype} {values!r}")
+        v = list(arr.astype(np.float64).ravel())
+        if len(v) != 3:
             raise InputError(f"Pose2.from_array needs 3 values [x, y, theta], got {len(v)}")
         return cls(v[0], v[1], v[2])
 

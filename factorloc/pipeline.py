@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from factorloc.config import Config
-from factorloc.errors import FactorlocError, InputError
+from factorloc.errors import FactorlocError, InputError, UnusableInputError
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.estimators.compass import CompassStep
 from factorloc.estimators.correlation import CorrelationStep
@@ -119,13 +119,15 @@ class Localizer:
         runs: list[StepRun] = []
         for step in self.steps:
             t0 = time.perf_counter()
-            est, failure = None, ""
+            est, failure, unusable = None, "", ""
             try:
                 est = step.estimate(self._prepared[step.name], query, hypotheses if seeded else Hypotheses())
+            except UnusableInputError as exc:
+                unusable = str(exc)
             except FactorlocError as exc:
                 failure = f"{type(exc).__name__}: {exc}"
                 log.warning("step %s failed on query %r: %s", step.name, query.id, failure)
-            runs.append(StepRun(step.name, est, time.perf_counter() - t0, failure))
+            runs.append(StepRun(step.name, est, time.perf_counter() - t0, failure, unusable))
             if est is not None and est.reliable:
                 hypotheses = hypotheses.plus(est)
         return fuse_gated(gate(runs, self.config.gating), self.strategy, config=self.config, query=query)

@@ -16,13 +16,44 @@ import cv2
 import numpy as np
 import yaml
 
-from factorloc._validate import number_problem
+from factorloc._validate import _short, keys_problem, number_problem
+from factorloc._yaml import load_yaml
+from factorloc.datasets.points_io import read_points
 from factorloc.datasets.scenario import FORMAT_NAME, FORMAT_VERSION, Scenario, ScenarioQuery, ScenarioReference
 from factorloc.errors import DatasetError, InputError
 from factorloc.geometry import Pose2
 from factorloc.types import CameraImage, Odometry, Panorama, PointCloud, Query, Reference, Scan
 
 __all__ = ["load_scenario", "scenario_files"]
+
+# The keys each mapping of a manifest may hold (what :func:`factorloc.datasets.save_scenario` writes); any other
+# is an error naming it and the nearest known one (a misspelt ``odometery:`` must not load a query without odometry).
+POSE_KEYS = frozenset({"x_m", "y_m", "theta_rad"})
+MANIFEST_KEYS = {
+    "": frozenset({"format", "format_version", "name", "description", "seed", "world", "metadata", "references", "queries"}),
+    "reference": frozenset({"id", "name", "T_world_reference", "panorama", "cloud", "scan", "metadata"}),
+    "query": frozenset(
+        {
+            "id",
+            "timestamp_s",
+            "reference",
+            "truth",
+            "odometry",
+            "faults",
+            "distance_from_reference_m",
+            "images",
+            "panorama",
+            "cloud",
+            "scan",
+            "metadata",
+        }
+    ),  # fmt: skip
+    "pose": POSE_KEYS,
+    "odometry": POSE_KEYS | {"sigma_x_m", "sigma_y_m", "sigma_theta_rad"},
+    "image": frozenset({"file", "width_px", "height_px", "hfov_rad", "yaw_in_robot_rad", "pitch_rad", "cx_px"}),
+    "panorama": frozenset({"file", "width_px", "height_px", "fov_v_rad", "azimuth_col0_rad", "seen_columns"}),
+    "points": frozenset({"file", "points"}),
+}
 
 
 class _Ctx:
@@ -45,6 +76,21 @@ class _Ctx:
         except InputError as exc:
             raise self.fail(fieldname, str(exc)) from exc
 
+    def keys(self, d: Any, where: str, kind: str) -> None:
+        """Raise naming the first key of the mapping ``d`` that a ``kind`` mapping does not hold (:data:`MANIFEST_KEYS`)."""
+        if not isinstance(d, Mapping):
+            raise self.fail(where or "(top level)", f"must be a mapping, got {type(d).__name__}")
+        problem = keys_problem(d, MANIFEST_KEYS[kind])
+        if problem:
+            raise self.fail(where or "(top level)", problem)
+
+    def ident(self, d: Any, where: str) -> str:
+        """The ``id`` of an entry: a string (or an integer written as one), never null or a boolean."""
+        v = self.get(d, "id", where)
+        if v is None or isinstance(v, bool) or not isinstance(v, (str, int)):
+            raise self.fail(f"{where}.id", f"must be a string, got {type(v).__name__} {v!r}")
+        return str(v)
+
     def get(self, d: Any, key: str, where: str, *, required: bool = True, default: Any = None) -> Any:
         if not isinstance(d, Mapping):
             raise self.fail(where, f"must be a mapping, got {type(d).__name__}")
@@ -63,7 +109,8 @@ class _Ctx:
             raise self.fail(f"{where}.{key}" if where else key, problem)
         return float(v)
 
-    def pose(self, d: Any, where: str) -> Pose2:
+    def pose(self, d: Any, where: str, kind: str = "pose") -> Pose2:
+        self.keys(d, where, kind)
         x, y, t = self.number(d, "x_m", where), self.number(d, "y_m", where), self.number(d, "theta_rad", where)
         with self.at(where):
             return Pose2(x, y, t)
@@ -79,7 +126,8 @@ class _Ctx:
             raise DatasetError(f"{self.manifest}: field '{where}.file': file {str(self.root / rel)!r} does not exist")
         return p
 
-    def image(self, d: Any, where: str) -> np.ndarray:
+    def image(self, d: Any, where: str, kind: str = "image") -> np.ndarray:
+        self.keys(d, where, kind)
         p = self.file(d, where)
         img = cv2.imread(str(p), cv2.IMREAD_COLOR)
         if img is None:
@@ -94,26 +142,13 @@ class _Ctx:
         return img
 
     def points(self, d: Any, where: str, ncols: int) -> np.ndarray:
+        self.keys(d, where, "points")
         p = self.file(d, where)
         try:
-            if p.suffix == ".npy":
-                arr = np.load(p, allow_pickle=False)
-            elif p.suffix == ".npz":
-                with np.load(p, allow_pickle=False) as z:
-                    if "points_m" not in z:
-                        raise DatasetError(
-                            f"{self.manifest}: field '{where}.file': {str(p)!r} has no array 'points_m' (has {list(z.keys())})"
-                        )
-                    arr = z["points_m"]
-            elif p.suffix == ".ply":
-                import open3d as o3d
-
-                arr = np.asarray(o3d.io.read_point_cloud(str(p)).points)
-                if ncols == 2 and arr.ndim == 2:
-                    arr = arr[:, :2]
-            else:
-                raise DatasetError(f"{self.manifest}: field '{where}.file': {str(p)!r} must be .npy, .npz or .ply")
-        except (OSError, ValueError) as exc:
+            arr = read_points(p, ncols)
+        except DatasetError as exc:
+            raise DatasetError(f"{self.manifest}: field '{where}.file': {exc}") from exc
+        except OSError as exc:
             raise DatasetError(f"{self.manifest}: field '{where}.file': {str(p)!r} cannot be read: {exc}") from exc
         if arr.ndim != 2 or arr.shape[1] != ncols or arr.shape[0] < 1:
             raise DatasetError(
@@ -125,7 +160,9 @@ class _Ctx:
             raise DatasetError(f"{self.manifest}: field '{where}.file': {str(p)!r} contains NaN or infinite values")
         n = self.get(d, "points", where, required=False)
         if n is not None and n != arr.shape[0]:
-            raise DatasetError(f"{self.manifest}: field '{where}.points': says {n} points, {str(p)!r} holds {arr.shape[0]}")
+            raise DatasetError(
+                f"{self.manifest}: field '{where}.points': says {_short(n)} points, {str(p)!r} holds {arr.shape[0]}"
+            )
         return arr
 
 
@@ -150,12 +187,12 @@ def load_scenario(path: str | Path) -> Scenario:
     if not ctx.manifest.is_file():
         raise DatasetError(f"{ctx.manifest}: the manifest scenario.yaml does not exist")
     try:
-        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-        m = yaml.load(ctx.manifest.read_text(encoding="utf-8"), Loader=loader)  # noqa: S506 - a safe loader
+        m = load_yaml(ctx.manifest.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise DatasetError(f"{ctx.manifest}: cannot be parsed as YAML: {exc}") from exc
     if not isinstance(m, Mapping):
         raise DatasetError(f"{ctx.manifest}: the manifest must be a mapping, got {type(m).__name__}")
+    ctx.keys(m, "", "")
     fmt = ctx.get(m, "format", "")
     if fmt != FORMAT_NAME:
         raise ctx.fail("format", f"must be {FORMAT_NAME!r}, got {fmt!r}")
@@ -210,7 +247,8 @@ def _optional_sensors(ctx: _Ctx, d: Any, where: str) -> tuple[Panorama | None, P
 
 
 def _load_reference(ctx: _Ctx, r: Any, where: str) -> ScenarioReference:
-    rid = ctx.get(r, "id", where)
+    ctx.keys(r, where, "reference")
+    rid = ctx.ident(r, where)
     pano, cloud, scan = _optional_sensors(ctx, r, where)
     T = ctx.pose(ctx.get(r, "T_world_reference", where), f"{where}.T_world_reference")
     name = str(ctx.get(r, "name", where, required=False, default="reference"))
@@ -220,7 +258,8 @@ def _load_reference(ctx: _Ctx, r: Any, where: str) -> ScenarioReference:
 
 
 def _load_query(ctx: _Ctx, e: Any, where: str, default_reference: str) -> ScenarioQuery:
-    qid = ctx.get(e, "id", where)
+    ctx.keys(e, where, "query")
+    qid = ctx.ident(e, where)
     images = []
     ims = ctx.get(e, "images", where, required=False, default=[]) or []
     if not isinstance(ims, list):
@@ -238,7 +277,7 @@ def _load_query(ctx: _Ctx, e: Any, where: str, default_reference: str) -> Scenar
     o = ctx.get(e, "odometry", where, required=False)
     if o is not None:
         wo = f"{where}.odometry"
-        pose = ctx.pose(o, wo)
+        pose = ctx.pose(o, wo, "odometry")
         sig = [ctx.number(o, k, wo, positive=True) for k in ("sigma_x_m", "sigma_y_m", "sigma_theta_rad")]
         with ctx.at(wo):
             odo = Odometry(pose, *sig)
@@ -258,7 +297,7 @@ def _load_query(ctx: _Ctx, e: Any, where: str, default_reference: str) -> Scenar
 
 
 def _read_panorama(ctx: _Ctx, d: Any, where: str) -> Panorama:
-    img = ctx.image(d, where)
+    img = ctx.image(d, where, "panorama")
     fov = ctx.number(d, "fov_v_rad", where, positive=True)
     az0 = ctx.number(d, "azimuth_col0_rad", where, required=False, default=math.pi)
     seen = _seen_columns(ctx, ctx.get(d, "seen_columns", where, required=False), img.shape[1], where)

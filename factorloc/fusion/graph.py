@@ -35,7 +35,14 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from factorloc.fusion.base import Fused, check_estimates, mark_undetermined, undetermined_components
+from factorloc.fusion.base import (
+    Fused,
+    check_conditioning,
+    check_estimates,
+    fusion_errors,
+    mark_undetermined,
+    undetermined_components,
+)
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.types import Component, Estimate
 
@@ -102,6 +109,7 @@ class GraphFusion:
     def build(self, estimates: Sequence[Estimate]) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, tuple[Component, ...]]:
         """The factor graph, its initial values and the under-determined components."""
         ests = check_estimates(estimates)
+        check_conditioning(ests)
         graph = gtsam.NonlinearFactorGraph()
         for e in ests:
             for f in factors_for(e):
@@ -115,6 +123,12 @@ class GraphFusion:
         return graph, _start(graph, ests, initial), undetermined
 
     def fuse(self, estimates: Sequence[Estimate]) -> Fused:
+        """The fused pose; :class:`~factorloc.errors.FusionError` naming the estimates when their information is
+        too ill-conditioned (:func:`~factorloc.fusion.base.check_conditioning`) or GTSAM fails."""
+        with fusion_errors(list(estimates), "graph"):
+            return self._fuse(estimates)
+
+    def _fuse(self, estimates: Sequence[Estimate]) -> Fused:
         graph, initial, undetermined = self.build(estimates)
         if self.optimizer == "gauss_newton":
             params = gtsam.GaussNewtonParams()
@@ -129,7 +143,10 @@ class GraphFusion:
             params.setMaxIterations(self.max_iterations)
             result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
         pose = Pose2.from_gtsam(result.atPose2(POSE_KEY))
-        cov = mark_undetermined(rotate_covariance(_body_covariance(graph, result), pose.theta), undetermined)
+        body = _body_covariance(graph, result)
+        if not np.isfinite(body).all():
+            raise FloatingPointError(f"the marginal covariance is not finite: {body.tolist()}")
+        cov = mark_undetermined(rotate_covariance(body, pose.theta), undetermined)
         return Fused(pose, cov, undetermined)
 
     def __repr__(self) -> str:
@@ -150,7 +167,7 @@ def _body_covariance(graph: gtsam.NonlinearFactorGraph, result: gtsam.Values) ->
     except RuntimeError:
         information = np.asarray(graph.linearize(result).hessian()[0])
         cov = np.linalg.inv(information)
-        return 0.5 * (cov + cov.T)
+        return 0.5 * cov + 0.5 * cov.T
 
 
 def _initial_pose(estimates: Sequence[Estimate]) -> Pose2:

@@ -23,7 +23,9 @@ import numpy as np
 
 from factorloc.fusion.base import (
     Fused,
+    check_conditioning,
     check_estimates,
+    fusion_errors,
     heading_anchor,
     indices,
     undetermined_components,
@@ -39,7 +41,14 @@ class ProductFusion:
     name = "product"
 
     def fuse(self, estimates: Sequence[Estimate]) -> Fused:
+        """The product; :class:`~factorloc.errors.FusionError` naming the estimates when their information is too
+        ill-conditioned to invert (:func:`~factorloc.fusion.base.check_conditioning`)."""
         ests = check_estimates(estimates)
+        check_conditioning(ests)
+        with fusion_errors(ests, "product"):
+            return self._fuse(ests)
+
+    def _fuse(self, ests: list[Estimate]) -> Fused:
         anchor = heading_anchor(ests)
         info = np.zeros((3, 3))
         vec = np.zeros(3)
@@ -58,7 +67,7 @@ class ProductFusion:
         chol = np.linalg.cholesky(sub)
         inv_chol = np.linalg.solve(chol, np.eye(len(det)))
         sub_cov = inv_chol.T @ inv_chol
-        cov[np.ix_(det, det)] = 0.5 * (sub_cov + sub_cov.T)
+        cov[np.ix_(det, det)] = 0.5 * sub_cov + 0.5 * sub_cov.T
         mean[det] = sub_cov @ vec[det]
         if Component.THETA in undetermined:
             mean[2] = 0.0

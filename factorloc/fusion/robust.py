@@ -38,7 +38,7 @@ import gtsam
 import numpy as np
 
 from factorloc.errors import ConfigError
-from factorloc.fusion.base import Fused, check_estimates, mark_undetermined, undetermined_components
+from factorloc.fusion.base import Fused, check_estimates, fusion_errors, mark_undetermined, undetermined_components
 from factorloc.fusion.graph import POSE_KEY, GraphFusion, _body_covariance, noise_model
 from factorloc.fusion.sequential import reliable_estimates
 from factorloc.geometry import Pose2, rotate_covariance
@@ -110,7 +110,12 @@ class RobustGraphFusion:
 
     # --- FusionStrategy -------------------------------------------------------------------
     def fuse(self, estimates: Sequence[Estimate]) -> Fused:
+        """The robust fused pose; a GTSAM failure is a :class:`~factorloc.errors.FusionError` naming the estimates."""
         ests = check_estimates(estimates)
+        with fusion_errors(ests, self.name):
+            return self._fuse(ests)
+
+    def _fuse(self, ests: list[Estimate]) -> Fused:
         undetermined = undetermined_components(ests)
         graph = gtsam.NonlinearFactorGraph()
         for e in ests:

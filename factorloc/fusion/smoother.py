@@ -37,7 +37,7 @@ import gtsam
 import numpy as np
 
 from factorloc.errors import InputError
-from factorloc.fusion.base import Fused
+from factorloc.fusion.base import Fused, fusion_errors
 from factorloc.fusion.graph import factors_for
 from factorloc.fusion.product import ProductFusion
 from factorloc.fusion.sequential import (
@@ -173,7 +173,8 @@ class TrajectorySmoother:
             for f in factors_for(e, key):
                 graph.add(f)
         self._add_timestamp(key)
-        pose, body = self._solve(graph, values, key)
+        with fusion_errors(accepted, self.name):  # a GTSAM failure names the query's estimates; reset() before reuse
+            pose, body = self._solve(graph, values, key)
         cov = rotate_covariance(body, pose.theta)
         self._last = (pose, cov)
         self.keys.append(key)

@@ -13,6 +13,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
+from factorloc.errors import FusionError
 from factorloc.geometry import wrap_angle
 from factorloc.stats import chi2_quantile
 from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
@@ -72,47 +75,70 @@ class Verdict:
         return self.estimate.marginal(self.accepted)
 
 
-def _inv(m: tuple[float, ...]) -> tuple[float, ...]:
-    """Inverse of a symmetric 1×1 ``(a,)`` or 2×2 ``(a, b, d)`` (= [[a, b], [b, d]]) matrix, same packing."""
-    if len(m) == 1:
-        return (1.0 / m[0],)
-    a, b, d = m
-    det = a * d - b * b
-    return (d / det, -b / det, a / det)
+def _inv(m: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric 1×1 ``(a,)`` or 2×2 ``(a, b, d)`` (= [[a, b], [b, d]]) matrices, rows of ``m``, same packing.
 
-
-def _others(
-    i: int, active: list[int], values: list[tuple[float, ...]], covariances: list[tuple[float, ...]], lam: list, lam_z: list
-) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """Mean and packed covariance of the product of the active estimates other than ``i``.
-
-    A single other estimate is used as it is (its covariance, not the inverse of its information: an
-    estimate unknown along one direction, 30 m vs 1 cm, loses ~7 digits in the round trip); several are
-    summed directly in information form (not total − own: no cancellation).
+    Checked before dividing: a matrix whose determinant is not above :data:`MIN_RELATIVE_DET` · a·d (a
+    correlation within 5e-13 of ±1) or not finite raises :class:`~factorloc.errors.FusionError`.
     """
-    others = [j for j in active if j != i]
-    if len(others) == 1:
-        return values[others[0]], covariances[others[0]]
-    k = len(values[0])
-    cov_o = _inv(tuple(sum(lam[j][m] for j in others) for m in range(len(lam[0]))))
-    b = [sum(lam_z[j][m] for j in others) for m in range(k)]
-    mean_o = (cov_o[0] * b[0],) if k == 1 else (cov_o[0] * b[0] + cov_o[1] * b[1], cov_o[1] * b[0] + cov_o[2] * b[1])
-    return mean_o, cov_o
+    m = np.asarray(m, dtype=np.float64)
+    if m.shape[1] == 1:
+        if not (np.isfinite(m).all() and (m > 0.0).all()):
+            raise FusionError(f"consistency gate: a variance is not positive and finite: {m[:, 0].tolist()[:8]}")
+        return 1.0 / m
+    a, b, d = m[:, 0], m[:, 1], m[:, 2]
+    det = a * d - b * b
+    if not (np.isfinite(det).all() and (det > MIN_RELATIVE_DET * a * d).all() and (a > 0.0).all()):
+        raise FusionError("consistency gate: a 2×2 covariance or information is singular or not finite")
+    return np.stack([d / det, -b / det, a / det], axis=1)
 
+
+#: The smallest determinant, relative to the product of the diagonal (1 - ρ²), the gate inverts.
+MIN_RELATIVE_DET = 1e-12
 
 Packed = tuple[float, ...]
 
 
-def _d2(z: Packed, c: Packed, mean_o: Packed, cov_o: Packed, is_heading: bool) -> float:
-    """Squared Mahalanobis distance of one estimate (value ``z``, packed covariance ``c``) from the others' product."""
-    if len(z) == 1:
-        err = z[0] - mean_o[0]
+def _others(
+    rows: np.ndarray, values: np.ndarray, covariances: np.ndarray, lam: np.ndarray, lam_z: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Means and packed covariances of the products of the active estimates ``rows`` other than each one.
+
+    A single other estimate is used as it is (its covariance, not the inverse of its information: an
+    estimate unknown along one direction, 30 m vs 1 cm, loses ~7 digits in the round trip); several are
+    summed in information form as the sum before it plus the sum after it (prefix and suffix sums: O(n) for
+    all n leave-one-out products, and no cancellation, unlike total − own).
+    """
+    m = len(rows)
+    if m == 2:
+        swap = rows[::-1]
+        return values[swap], covariances[swap]
+    k = values.shape[1]
+
+    def loo(x: np.ndarray) -> np.ndarray:
+        zero = np.zeros((1, x.shape[1]))
+        before = np.concatenate([zero, np.cumsum(x, axis=0)[:-1]])
+        after = np.concatenate([np.cumsum(x[::-1], axis=0)[::-1][1:], zero])
+        return before + after
+
+    cov_o = _inv(loo(lam[rows]))
+    b = loo(lam_z[rows])
+    if k == 1:
+        return cov_o * b, cov_o
+    mean_o = np.stack([cov_o[:, 0] * b[:, 0] + cov_o[:, 1] * b[:, 1], cov_o[:, 1] * b[:, 0] + cov_o[:, 2] * b[:, 1]], axis=1)
+    return mean_o, cov_o
+
+
+def _d2(z: np.ndarray, c: np.ndarray, mean_o: np.ndarray, cov_o: np.ndarray, is_heading: bool) -> np.ndarray:
+    """Squared Mahalanobis distances of estimates (values ``z``, packed covariances ``c``) from the others' products."""
+    if z.shape[1] == 1:
+        err = z[:, 0] - mean_o[:, 0]
         if is_heading:
-            err = wrap_angle(err)
-        return float(err * err / (c[0] + cov_o[0]))
-    ex, ey = z[0] - mean_o[0], z[1] - mean_o[1]
-    sa, sb, sd = _inv((c[0] + cov_o[0], c[1] + cov_o[1], c[2] + cov_o[2]))
-    return float(ex * (sa * ex + sb * ey) + ey * (sb * ex + sd * ey))
+            err = np.asarray(wrap_angle(err), dtype=np.float64).reshape(-1)
+        return err * err / (c[:, 0] + cov_o[:, 0])
+    ex, ey = z[:, 0] - mean_o[:, 0], z[:, 1] - mean_o[:, 1]
+    s = _inv(c + cov_o)
+    return ex * (s[:, 0] * ex + s[:, 1] * ey) + ey * (s[:, 1] * ex + s[:, 2] * ey)
 
 
 def _gate_group(
@@ -123,8 +149,7 @@ def _gate_group(
     ``values`` are k-tuples (k = 1: θ; k = 2: x, y) and ``covariances`` their packed symmetric covariances
     (see :func:`_inv`). Leave-one-out products in information form over the other active estimates
     (headings unwrapped around the most certain one). Ties (within 1e-6 relative) reject the earliest.
-    Scalar arithmetic: at most a handful of 1×1 and 2×2 systems per query, where numpy's per-call overhead
-    would dominate.
+    Each round is O(n) (:func:`_others`), vectorized over the active estimates.
 
     Returns
     -------
@@ -137,32 +162,39 @@ def _gate_group(
     n = len(values)
     if n < 2:
         return rejected, d2s
-    k = len(values[0])
+    vals = np.array(values, dtype=np.float64)
+    covs = np.array(covariances, dtype=np.float64)
+    k = vals.shape[1]
     if is_heading:
-        anchor = values[min(range(n), key=lambda i: covariances[i][0])][0]  # first of the most certain
-        values = [(anchor + wrap_angle(v[0] - anchor),) for v in values]
-    lam = [_inv(c) for c in covariances]
+        anchor = vals[int(np.argmin(covs[:, 0])), 0]  # first of the most certain
+        vals = anchor + np.asarray(wrap_angle(vals - anchor), dtype=np.float64).reshape(n, 1)
+    lam = _inv(covs)
     if k == 1:
-        lam_z = [(lm[0] * z[0],) for lm, z in zip(lam, values, strict=True)]
+        lam_z = lam * vals
     else:
-        lam_z = [(lm[0] * z[0] + lm[1] * z[1], lm[1] * z[0] + lm[2] * z[1]) for lm, z in zip(lam, values, strict=True)]
-    active = list(range(n))
-    round_d2: dict[int, float] = {}
-    while len(active) >= 2:
+        lam_z = np.stack(
+            [lam[:, 0] * vals[:, 0] + lam[:, 1] * vals[:, 1], lam[:, 1] * vals[:, 0] + lam[:, 2] * vals[:, 1]], axis=1
+        )
+    alive = np.ones(n, dtype=bool)
+    last: tuple[np.ndarray, np.ndarray] | None = None  # (rows, d²) of the last complete round
+    while alive.sum() >= 2:
+        rows = np.flatnonzero(alive)
+        mean_o, cov_o = _others(rows, vals, covs, lam, lam_z)
+        d2 = _d2(vals[rows], covs[rows], mean_o, cov_o, is_heading)
         worst, worst_d2 = None, threshold
-        round_d2 = {}
-        for i in active:
-            mean_o, cov_o = _others(i, active, values, covariances, lam, lam_z)
-            d2 = _d2(values[i], covariances[i], mean_o, cov_o, is_heading)
-            round_d2[i] = d2
-            if d2 > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
-                worst, worst_d2 = i, d2
+        # the scan below keeps worst_d2 ≥ (max so far) / (1 + 1e-6), so only a strict new maximum of the prefix can
+        # replace it: scanning just those (O(log m) for a random order) gives the same pick as scanning all
+        before = np.concatenate([[-np.inf], np.maximum.accumulate(d2)[:-1]])
+        for j in np.flatnonzero((d2 > before) & (d2 > threshold * (1.0 + 1e-6))).tolist():
+            if d2[j] > worst_d2 * (1.0 + 1e-6):  # strictly worse (beyond rounding): ties keep the earliest
+                worst, worst_d2 = int(rows[j]), float(d2[j])
         if worst is None:
+            last = (rows, d2)
             break
         rejected[worst] = worst_d2
         d2s[worst] = worst_d2
-        active.remove(worst)
-        round_d2 = {}
+        alive[worst] = False
+    round_d2 = {} if last is None else dict(zip(last[0].tolist(), last[1].tolist(), strict=True))
     d2s.update(round_d2)  # the last complete round's distances of the survivors
     return rejected, d2s
 

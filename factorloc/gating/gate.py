@@ -41,12 +41,17 @@ class StepRun:
         Its run time (s).
     error
         The error it raised (``"InputError: …"``), ``""`` when it did not.
+    unusable
+        Why its inputs, present, could not be used (:class:`~factorloc.errors.UnusableInputError`), ``""`` when
+        they could or were absent: the report is ``SKIPPED`` with ``unusable: <why>`` and a failed
+        ``<step>.inputs_usable`` check.
     """
 
     name: str
     estimate: Estimate | None
     seconds: float = 0.0
     error: str = ""
+    unusable: str = ""
 
     @classmethod
     def of_report(cls, report: StepReport) -> StepRun:
@@ -68,14 +73,15 @@ def report_reason(
 ) -> str:
     """The sentence a user reads for one step report: the one place it is composed.
 
-    ``FAILED``: the error; ``SKIPPED``: "inputs absent"; ``UNRELIABLE``: the estimate's reason (rendered from
+    ``FAILED``: the error; ``SKIPPED``: "inputs absent", or "unusable: <why>" when its inputs were present
+    but unusable (``error`` is then the why); ``UNRELIABLE``: the estimate's reason (rendered from
     its failed checks when it gave none); ``INCONSISTENT``: the gate's failed checks; ``FUSED``: the estimate's
     own reason, else the consistency ``verdict``'s (``"partly fused: …"`` when a part was rejected).
     """
     if status is StepStatus.FAILED:
         return error
     if status is StepStatus.SKIPPED:
-        return "inputs absent"
+        return f"unusable: {error}" if error else "inputs absent"
     if status is StepStatus.UNRELIABLE:
         return (estimate.reason if estimate is not None else "") or render_checks(checks) or "unreliable"
     if status is StepStatus.INCONSISTENT:
@@ -89,7 +95,7 @@ def report_reason(
 
 def _report(run: StepRun, status: StepStatus, checks: Sequence[Check] = (), verdict: Verdict | None = None) -> StepReport:
     checks = tuple(checks)
-    reason = report_reason(status, run.estimate, checks, run.error, verdict)
+    reason = report_reason(status, run.estimate, checks, run.unusable if status is StepStatus.SKIPPED else run.error, verdict)
     return StepReport(run.name, status, run.estimate if status is not StepStatus.FAILED else None, reason, run.seconds, checks)
 
 
@@ -109,7 +115,8 @@ def gate(runs: Sequence[StepRun], config: GatingConfig | None = None) -> Gated:
         if run.error:
             reports.append(_report(run, StepStatus.FAILED))
         elif est is None:
-            reports.append(_report(run, StepStatus.SKIPPED))
+            usable = Check.flag(f"{run.name}.inputs_usable", "inputs usable", False, failure=run.unusable)
+            reports.append(_report(run, StepStatus.SKIPPED, (usable,) if run.unusable else ()))
         elif not est.reliable:
             reports.append(_report(run, StepStatus.UNRELIABLE, failed(est.checks)))
         elif id(est) in contradicted:

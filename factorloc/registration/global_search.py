@@ -111,6 +111,11 @@ class Candidate:
     score: float
 
 
+#: The most cells a likelihood field may have (about 20 bytes each while it is built: 320 MB), e.g. 200 m × 200 m
+#: at the fine 5 cm; the search's own reference is cut to ``max_range_m + radius_m`` around its pose first.
+MAX_FIELD_CELLS = 16_000_000
+
+
 def build_field(points_m: np.ndarray, resolution_m: float, sigma_m: float, margin_m: float) -> LikelihoodField:
     """The likelihood field of reference points (N×2 m) with ``margin_m`` of zero-padded border.
 
@@ -121,7 +126,13 @@ def build_field(points_m: np.ndarray, resolution_m: float, sigma_m: float, margi
         raise InputError(f"build_field needs N×2 points with N >= 1, got shape {pts.shape}")
     lo = pts.min(axis=0) - margin_m
     hi = pts.max(axis=0) + margin_m
-    shape = tuple(int(v) for v in np.ceil((hi - lo) / resolution_m).astype(int) + 1)
+    cells = np.ceil((hi - lo) / resolution_m) + 1.0  # float: an absurd extent must not overflow an int first
+    if not float(cells[0] * cells[1]) <= MAX_FIELD_CELLS:
+        raise InputError(
+            f"the reference points span {hi[0] - lo[0]:.3g} m × {hi[1] - lo[1]:.3g} m: a likelihood field at "
+            f"{resolution_m:g} m would need {float(cells[0] * cells[1]):.3g} cells, more than {MAX_FIELD_CELLS:g}"
+        )
+    shape = (int(cells[0]), int(cells[1]))
     occ = np.ones(shape, dtype=bool)
     idx = np.floor((pts - lo) / resolution_m).astype(np.int64)
     occ[idx[:, 0], idx[:, 1]] = False
@@ -164,6 +175,13 @@ def _score_lattice(
     bx = np.floor((rx + tx - field.origin_m[0]) / res + 1e-9).astype(np.int64)
     by = np.floor((ry + ty - field.origin_m[1]) / res + 1e-9).astype(np.int64)
     kx, ky = n_steps
+    # a point whose whole window lies outside the field scores 0 at every offset: it reads an all-zero window
+    # of the border, so that the padding stays within one window of the field whatever the coordinates
+    # (a seed 10⁹ m away once asked for a 608 GiB pad)
+    outside = (bx + kx <= 0) | (bx >= F.shape[0]) | (by + ky <= 0) | (by >= F.shape[1])
+    if outside.any():
+        bx = np.where(outside, -kx, bx)
+        by = np.where(outside, -ky, by)
     px0, px1 = max(0, -int(bx.min())), max(0, int(bx.max()) + kx - F.shape[0])
     py0, py1 = max(0, -int(by.min())), max(0, int(by.max()) + ky - F.shape[1])
     if px0 or px1 or py0 or py1:
@@ -298,8 +316,11 @@ def reference_fields(
     ref = np.asarray(reference_m, dtype=np.float64)
     if ref.ndim != 2 or ref.shape[1] != 2 or len(ref) < 3:
         raise InputError(f"reference_m must be N×2 with N >= 3, got shape {ref.shape}")
-    keep = np.hypot(ref[:, 0], ref[:, 1]) <= params.max_range_m + params.radius_m
-    ref = ref[keep] if keep.sum() >= 3 else ref
+    reach = params.max_range_m + params.radius_m
+    keep = np.hypot(ref[:, 0], ref[:, 1]) <= reach
+    if not keep.any():
+        raise InputError(f"no reference point lies within {reach:g} m of the reference pose: nothing to search against")
+    ref = ref[keep]
     coarse = build_field(ref, params.coarse_resolution_m, params.coarse_sigma_m, 3.0 * params.coarse_sigma_m)
     fine = build_field(
         voxel_downsample_2d(ref, 0.5 * params.fine_resolution_m),

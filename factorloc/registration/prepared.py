@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from factorloc._validate import MAX_COORDINATE_M
 from factorloc.errors import InputError
 from factorloc.registration.nn import GRID_CELL_M, GRID_MAX_CELLS, KdTree2D, build_grid
 from factorloc.registration.scan2d import pca_normals
@@ -281,9 +282,8 @@ def prepare_target(points_m: np.ndarray, params: IcpParams = IcpParams()) -> Pre
     return target
 
 
-MAX_COORDINATE_M = 1e9
-"""Largest absolute point coordinate :func:`align` and :func:`prepare_target` accept (m): far beyond any
-scan, and small enough that squared ranges and distances never overflow."""
+# MAX_COORDINATE_M (from factorloc._validate, 1e9 m): the largest absolute point coordinate :func:`align` and
+# :func:`prepare_target` accept — far beyond any scan, and small enough that squared ranges never overflow.
 
 
 def check_coordinates(name: str, pts: np.ndarray) -> None:

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from factorloc._validate import finite_float, mapping, positive_float, sequence
+from factorloc._yaml import load_yaml
 from factorloc.errors import InputError
 from factorloc.sim.appearance import Decal, Face, Material
 from factorloc.sim.plan import Segments, point_in_polygon, point_segment_distance, segments_of
@@ -256,9 +257,8 @@ def load_world(path: str | Path) -> World:
         raise InputError(f"world file {str(p)!r} does not exist")
     try:
         text = p.read_text(encoding="utf-8")
-        loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-        data = json.loads(text) if p.suffix.lower() == ".json" else yaml.load(text, Loader=loader)  # noqa: S506 - a safe loader
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, json.JSONDecodeError) as exc:
+        data = json.loads(text) if p.suffix.lower() == ".json" else load_yaml(text)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, json.JSONDecodeError, RecursionError) as exc:
         raise InputError(f"world file {str(p)!r} cannot be parsed: {exc}") from exc
     try:
         return World.from_dict(data)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from factorloc._json import json_ready
-from factorloc._validate import float_array, positive_float
+from factorloc._validate import MAX_COORDINATE_M, MIN_CORRELATION_EIGENVALUE, SIGMA_MAX, SIGMA_MIN, float_array, sigma_float
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types.components import ALLOWED_COMPONENTS, FULL, HEADING, POSITION, Component, component_set
@@ -40,15 +40,42 @@ def _cholesky_pivots(c: list[list[float]]) -> list[float]:
 
 
 def _covariance(name: str, value: Any, k: int) -> np.ndarray:
+    """The k×k covariance ``value``, checked: symmetric, positive definite, every σ (the square root of a diagonal
+    term) in [SIGMA_MIN, SIGMA_MAX] (:mod:`factorloc._validate`) and correlations away from ±1
+    (:data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`). Checked before any arithmetic on it, so nothing
+    overflows (the symmetrized mean is taken as ``0.5·a + 0.5·b``)."""
     cov = float_array(name, value, (k, k))
+    diag = np.diagonal(cov)
+    bad = [i for i in range(k) if diag[i] > 0.0 and not SIGMA_MIN**2 <= diag[i] <= SIGMA_MAX**2]  # ≤ 0: not PD, below
+    if bad:
+        raise InputError(
+            f"{name}[{bad[0]}][{bad[0]}] must be a variance whose σ is in [{SIGMA_MIN:g}, {SIGMA_MAX:g}] (m or rad), "
+            f"got {float(diag[bad[0]])!r}"
+        )
     if (np.abs(cov - cov.T) > 1e-15 + 1e-9 * np.abs(cov.T)).any():  # np.allclose(rtol=1e-9, atol=1e-15), cheaper
         raise InputError(f"{name} must be symmetric, got {cov.tolist()}")
-    cov = 0.5 * (cov + cov.T)
+    cov = 0.5 * cov + 0.5 * cov.T
     if not all(p > 0.0 for p in _cholesky_pivots(cov.tolist())):
-        eig = np.linalg.eigvalsh(cov)
-        raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig.tolist()}")
+        with np.errstate(all="ignore"):
+            eig = np.linalg.eigvalsh(cov).tolist() if np.abs(cov).max() <= SIGMA_MAX**2 else "(entries beyond σ² range)"
+        raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig}")
+    if k > 1:
+        scale = 1.0 / np.sqrt(np.diagonal(cov))
+        corr_min = float(np.linalg.eigvalsh(cov * np.outer(scale, scale))[0])
+        if corr_min < MIN_CORRELATION_EIGENVALUE:
+            raise InputError(
+                f"{name} is too close to singular: its correlation matrix has eigenvalue {corr_min:.3g} "
+                f"< {MIN_CORRELATION_EIGENVALUE:g} (a correlation of ±1)"
+            )
     cov.setflags(write=False)
     return cov
+
+
+def _json_bool(name: str, value: Any) -> bool:
+    """A JSON boolean (``true``/``false``; numpy's bool too), not a string or a number read as truthy."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise InputError(f"{name} must be a JSON boolean (true or false), got {type(value).__name__} {value!r}")
 
 
 # --------------------------------------------------------------------------
@@ -105,6 +132,11 @@ class Estimate:
         values = np.array(float_array(f"Estimate({self.step}).values", self.values, (k,)))
         if comps[-1] is Component.THETA:
             values[-1] = wrap_angle(values[-1])
+        if k >= 2 and not float(np.abs(values[:2]).max()) <= MAX_COORDINATE_M:
+            raise InputError(
+                f"Estimate({self.step}).values: position ({values[0]!r}, {values[1]!r}) m is beyond the documented "
+                f"coordinate range ±{MAX_COORDINATE_M:g} m"
+            )
         values.setflags(write=False)
         object.__setattr__(self, "values", values)
         object.__setattr__(self, "covariance", _covariance(f"Estimate({self.step}).covariance", self.covariance, k))
@@ -128,7 +160,7 @@ class Estimate:
     @classmethod
     def heading(cls, step: str, theta_rad: float, sigma_rad: float, **kwargs: Any) -> Estimate:
         """A heading-only estimate θ ± σ (radians)."""
-        s = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_rad)
+        s = sigma_float(f"Estimate({step}).sigma_theta_rad", sigma_rad)
         return cls(step, HEADING, [theta_rad], [[s * s]], **kwargs)
 
     @classmethod
@@ -145,8 +177,8 @@ class Estimate:
     ) -> Estimate:
         """A position-only estimate (world-frame x, y) from sigmas or a 2×2 covariance."""
         if covariance is None:
-            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
-            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            sx = sigma_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = sigma_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
             covariance = np.diag([sx * sx, sy * sy])
         return cls(step, POSITION, [x_m, y_m], covariance, **kwargs)
 
@@ -164,9 +196,9 @@ class Estimate:
     ) -> Estimate:
         """A full-pose estimate from per-axis sigmas or a 3×3 world-frame covariance."""
         if covariance is None:
-            sx = positive_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
-            sy = positive_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
-            st = positive_float(f"Estimate({step}).sigma_theta_rad", sigma_theta_rad)
+            sx = sigma_float(f"Estimate({step}).sigma_x_m", sigma_x_m)
+            sy = sigma_float(f"Estimate({step}).sigma_y_m", sigma_y_m)
+            st = sigma_float(f"Estimate({step}).sigma_theta_rad", sigma_theta_rad)
             covariance = np.diag([sx * sx, sy * sy, st * st])
         return cls(step, FULL, pose.as_array(), covariance, **kwargs)
 
@@ -241,31 +273,62 @@ class Estimate:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Estimate:
-        """Inverse of :meth:`to_dict`; ``sigmas`` may replace ``covariance``."""
+        """Inverse of :meth:`to_dict`; ``sigmas`` may replace ``covariance``.
+
+        Every field is type-checked: a malformed one raises :class:`InputError` naming the estimate and the field
+        (never a ``TypeError`` or ``KeyError`` from deeper down).
+        """
         if not isinstance(data, Mapping):
             raise InputError(f"an estimate must be a JSON object, got {type(data).__name__}")
         for key in ("step", "components", "values"):
             if key not in data:
-                raise InputError(f"estimate is missing the field '{key}': {dict(data)!r}")
+                raise InputError(f"estimate is missing the field '{key}': {dict(data)!r}"[:300])
+        step = data["step"]
+        if not isinstance(step, str) or not step:
+            raise InputError(f"estimate field 'step' must be a non-empty string, got {step!r}"[:200])
+        where = f"Estimate({step})"
+        comps = data["components"]
+        if not isinstance(comps, (list, tuple)) or not all(isinstance(c, str) for c in comps):
+            raise InputError(f"{where}.components must be a list of component names, got {comps!r}"[:200])
+        values = data["values"]
+        if not isinstance(values, (list, tuple)):
+            raise InputError(f"{where}.values must be a list of numbers, got {type(values).__name__}")
         if "covariance" in data:
             cov = data["covariance"]
         elif "sigmas" in data:
-            sig = float_array(f"Estimate({data['step']}).sigmas", data["sigmas"], (len(data["values"]),))
-            if np.any(sig <= 0):
-                raise InputError(f"Estimate({data['step']}).sigmas must be > 0, got {sig.tolist()}")
+            sig = float_array(f"{where}.sigmas", data["sigmas"], (len(values),))
+            for i, s in enumerate(sig):
+                sigma_float(f"{where}.sigmas[{i}]", s)
             cov = np.diag(sig**2)
         else:
-            raise InputError(f"estimate '{data['step']}' needs 'covariance' or 'sigmas'")
+            raise InputError(f"estimate '{step}' needs 'covariance' or 'sigmas'")
+        checks_data, seed_data = data.get("checks") or (), data.get("seed")
+        try:
+            if not isinstance(checks_data, (list, tuple)):
+                raise TypeError(f"a list, got {type(checks_data).__name__}")
+            checks = tuple(Check.from_dict(c) for c in checks_data)
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            raise InputError(f"{where}.checks must be a list of checks as to_dict writes them: {exc}"[:300]) from exc
+        try:
+            seed = None if seed_data is None else SeedEvidence.from_dict(seed_data)
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            raise InputError(f"{where}.seed must be a seed record as to_dict writes it: {exc}"[:300]) from exc
+        diagnostics = data.get("diagnostics", {})
+        if not isinstance(diagnostics, Mapping):
+            raise InputError(f"{where}.diagnostics must be an object, got {type(diagnostics).__name__}")
+        reason = data.get("reason", "")
+        if not isinstance(reason, str):
+            raise InputError(f"{where}.reason must be a string, got {type(reason).__name__}")
         return cls(
-            step=data["step"],
-            components=tuple(data["components"]),
-            values=data["values"],
+            step=step,
+            components=tuple(comps),
+            values=values,
             covariance=cov,
-            reliable=data.get("reliable", True),
-            reason=data.get("reason", ""),
-            diagnostics=data.get("diagnostics", {}),
-            checks=tuple(Check.from_dict(c) for c in data.get("checks") or ()),
-            seed=None if data.get("seed") is None else SeedEvidence.from_dict(data["seed"]),
+            reliable=_json_bool(f"{where}.reliable", data.get("reliable", True)),
+            reason=reason,
+            diagnostics=diagnostics,
+            checks=checks,
+            seed=seed,
         )
 
     def __eq__(self, other: object) -> bool:

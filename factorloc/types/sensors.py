@@ -14,7 +14,15 @@ from typing import Any
 
 import numpy as np
 
-from factorloc._validate import bgr_image, finite_float, float_array, nonnegative_float, positive_float
+from factorloc._validate import (
+    angle_of_view,
+    bgr_image,
+    finite_float,
+    float_array,
+    nonnegative_float,
+    positive_float,
+    sigma_float,
+)
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 
@@ -88,9 +96,7 @@ class Panorama(_ImageSize):
             seen = seen.copy()
             seen.setflags(write=False)
             object.__setattr__(self, "seen_columns", seen)
-        fov = positive_float("Panorama.fov_v_rad", self.fov_v_rad)
-        if fov >= math.pi:
-            raise InputError(f"Panorama.fov_v_rad must be < π (cylindrical), got {fov!r}")
+        fov = angle_of_view("Panorama.fov_v_rad", self.fov_v_rad)
         object.__setattr__(self, "fov_v_rad", fov)
         object.__setattr__(self, "azimuth_col0_rad", finite_float("Panorama.azimuth_col0_rad", self.azimuth_col0_rad))
 
@@ -147,9 +153,7 @@ class CameraImage(_ImageSize):
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_bgr", bgr_image("CameraImage.image_bgr", self.image_bgr))
-        fov = positive_float("CameraImage.hfov_rad", self.hfov_rad)
-        if fov >= math.pi:
-            raise InputError(f"CameraImage.hfov_rad must be < π for a pinhole camera, got {fov!r}")
+        fov = angle_of_view("CameraImage.hfov_rad", self.hfov_rad)
         object.__setattr__(self, "hfov_rad", fov)
         object.__setattr__(
             self, "yaw_in_robot_rad", wrap_angle(finite_float("CameraImage.yaw_in_robot_rad", self.yaw_in_robot_rad))
@@ -238,9 +242,9 @@ class Odometry:
     def __post_init__(self) -> None:
         if not isinstance(self.T_world_robot, Pose2):
             raise InputError(f"Odometry.T_world_robot must be a Pose2, got {type(self.T_world_robot).__name__}")
-        object.__setattr__(self, "sigma_x_m", positive_float("Odometry.sigma_x_m", self.sigma_x_m))
-        object.__setattr__(self, "sigma_y_m", positive_float("Odometry.sigma_y_m", self.sigma_y_m))
-        object.__setattr__(self, "sigma_theta_rad", positive_float("Odometry.sigma_theta_rad", self.sigma_theta_rad))
+        object.__setattr__(self, "sigma_x_m", sigma_float("Odometry.sigma_x_m", self.sigma_x_m))
+        object.__setattr__(self, "sigma_y_m", sigma_float("Odometry.sigma_y_m", self.sigma_y_m))
+        object.__setattr__(self, "sigma_theta_rad", sigma_float("Odometry.sigma_theta_rad", self.sigma_theta_rad))
 
     @classmethod
     def from_distance(

@@ -39,6 +39,7 @@ __all__ = [
     "UNCONSTRAINED_SIGMA_M",
     "cloud_config",
     "constraint_strength",
+    "heading_strength",
     "covariance",
     "largest_sigma_position",
     "sigma_bias",
@@ -141,6 +142,34 @@ def constraint_strength(result: IcpResult) -> float:
     a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
     lam = 0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b)
     return 0.0 if lam < ROUNDING_TOLERANCE else lam
+
+
+#: The smallest heading strength (:func:`heading_strength`) at which the scan constrains the heading: below it (a
+#: round room seen from its centre) the ICP estimate is position only. Set between the circle of
+#: ``tests/estimators/test_icp_degenerate.py`` (4e-4) and the sample scenario's rooms (0.10–0.21 on its first 12 queries).
+MIN_HEADING_STRENGTH = 0.005
+
+
+def heading_strength(result: IcpResult, query_points_m: np.ndarray) -> float:
+    """How much the aligned scan constrains the heading beyond what translation explains, dimensionless in [0, 1].
+
+    The Schur complement of the heading in the Hessian, ``H_θθ − H_θp H_pp⁻¹ H_pθ`` (the position block
+    regularized by 1e-9 of its trace, so that a wall's free direction does not divide by zero), over
+    ``Σ wᵢ · mean |pᵢ|²`` (the largest it could be: every normal perpendicular to its ray). 0 for a circle
+    centred on the sensor (every normal along its ray: rotating changes nothing); a wall or a room constrain
+    it. Values within :data:`~factorloc.verdicts.ROUNDING_TOLERANCE` of 0 are returned as 0.
+    """
+    w = result.weights
+    sw = float(w.sum()) if len(w) >= 3 else 0.0
+    pts = np.asarray(query_points_m, dtype=np.float64)
+    r2 = float(np.mean(np.einsum("ij,ij->i", pts, pts))) if len(pts) else 0.0
+    if not (sw > 0.0 and r2 > 0.0):
+        return 0.0
+    h = np.asarray(result.hessian, dtype=np.float64)
+    hpp = h[:2, :2] + 1e-9 * max(float(np.trace(h[:2, :2])), 1e-300) * np.eye(2)
+    schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
+    value = min(max(schur / (sw * r2), 0.0), 1.0)
+    return 0.0 if value < ROUNDING_TOLERANCE else value
 
 
 def weak(strength: float, limit: float) -> bool:

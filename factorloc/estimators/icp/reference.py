@@ -14,7 +14,20 @@ from factorloc.registration.icp2d import PreparedScan, prepare_target
 from factorloc.registration.scan2d import extract_scan, polar_profile
 from factorloc.types import Query, Reference
 
-__all__ = ["IcpReference", "prepare_reference", "query_points"]
+__all__ = ["MAX_SCAN_POINTS", "IcpReference", "bounded_points", "prepare_reference", "query_points"]
+
+#: The most points of a scan (query or reference, or the cut of a cloud) the ICP step aligns: more are thinned
+#: to this many, evenly along the scan's order (deterministic), and the step's diagnostics say so
+#: (``downsampled_query_points`` / ``downsampled_reference_points``: [given, kept]). A laser scan has 360–1080.
+MAX_SCAN_POINTS = 4_000
+
+
+def bounded_points(points_m: np.ndarray, limit: int = MAX_SCAN_POINTS) -> np.ndarray:
+    """``points_m`` with at most ``limit`` rows: every row when it has no more, else ``limit`` evenly spaced ones."""
+    n = len(points_m)
+    if n <= limit:
+        return points_m
+    return points_m[np.linspace(0, n - 1, limit).round().astype(np.int64)]
 
 
 class IcpReference:
@@ -38,7 +51,8 @@ class IcpReference:
         self.config = config
         self.T_world_reference = T_world_reference
         self.T_reference_world = T_world_reference.inverse()
-        self.target: PreparedScan = prepare_target(points_m, config.alignment.icp)
+        self.n_given_points = len(points_m)
+        self.target: PreparedScan = prepare_target(bounded_points(np.asarray(points_m)), config.alignment.icp)
 
     @property
     def points_m(self) -> np.ndarray:

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from factorloc.errors import InputError
+from factorloc.errors import InputError, UnusableInputError
 from factorloc.estimators.base import Hypotheses
 from factorloc.estimators.icp.candidates import (
     QueryScan,
@@ -24,15 +24,17 @@ from factorloc.estimators.icp.candidates import (
 )
 from factorloc.estimators.icp.config import IcpConfig
 from factorloc.estimators.icp.covariance import (
+    MIN_HEADING_STRENGTH,
     cloud_config,
+    heading_strength,
     smallest_sigma_position,
     unconstrained_along,
     weak,
 )
-from factorloc.estimators.icp.reference import IcpReference, prepare_reference, query_points
+from factorloc.estimators.icp.reference import IcpReference, bounded_points, prepare_reference, query_points
 from factorloc.estimators.icp.rules import across_walls, judge, passed, seed_checks
 from factorloc.geometry import rotate_covariance
-from factorloc.types import Estimate, Query, Reference
+from factorloc.types import POSITION, Estimate, Query, Reference
 from factorloc.verdicts import Check, SeedEvidence, render_checks
 
 log = logging.getLogger(__name__)
@@ -105,8 +107,8 @@ def estimate(
         best = replace(best, checks=judge(replace(best.evidence, seed_fit=None), config))
         out = _across_walls(prepared, query, best, seeded, seeds, config, evidence)
         if out is not None:
-            return out
-    return Estimate.pose(
+            return _heading_checked(out, best, query)
+    est = Estimate.pose(
         "icp",
         prepared.T_world_reference * best.T_reference_query,
         covariance=rotate_covariance(best.covariance, prepared.T_world_reference.theta),
@@ -116,6 +118,31 @@ def estimate(
         diagnostics=_diagnostics(prepared, query, best, seeded, seeds, config),
         seed=evidence,
     )
+    return _heading_checked(est, best, query)
+
+
+def _heading_checked(est: Estimate, sol: Solution, query: QueryScan) -> Estimate:
+    """``est``, or its position alone when the scan does not constrain the heading (a round room from its centre).
+
+    The constraint rule's heading half (:func:`~factorloc.estimators.icp.covariance.heading_strength` against
+    :data:`~factorloc.estimators.icp.covariance.MIN_HEADING_STRENGTH`, beyond rounding): the heading ICP would
+    report is whatever its seed was, so it is left to the other steps (a waived check says so) rather than fused
+    with a σ the geometry does not support. An unreliable estimate is returned as it is.
+    """
+    strength = heading_strength(sol.result, query.points_m)
+    if not est.reliable or not weak(strength, MIN_HEADING_STRENGTH):
+        return est
+    check = Check.at_least(
+        "icp.constraint.heading",
+        "heading constraint strength",
+        strength,
+        MIN_HEADING_STRENGTH,
+        note="degenerate geometry: a round scan",
+    ).waived("the heading is left to the other steps")
+    position = est.marginal(POSITION)
+    reason = f"position only, heading unconstrained (strength {strength:.3g} < {MIN_HEADING_STRENGTH:g}): {est.reason}"
+    out = position.with_verdict(True, reason, (*est.checks, check))
+    return replace(out, diagnostics={**out.diagnostics, "heading_strength": strength})
 
 
 def _inputs(
@@ -291,20 +318,38 @@ class IcpStep:
             raise InputError(f"config must be an IcpConfig, got {type(config).__name__}")
         self.config = config
 
-    def prepare(self, reference: Reference) -> IcpReference | None:
-        """The prepared reference scan, or None (step skipped) when the reference has no usable scan or cloud."""
+    def prepare(self, reference: Reference) -> IcpReference | UnusableInputError | None:
+        """The prepared reference scan; None when the reference has no scan or cloud; the error when it has one
+        that cannot be used (a cloud with nothing in the height band), raised by :meth:`estimate`."""
         try:
             return prepare_reference(reference, self.config)
         except InputError as exc:
-            # a cloud with nothing in the height band: the step cannot run on this reference; say so
-            log.warning("ICP step skipped for reference %r: %s", reference.name, exc)
-            return None
+            log.warning("ICP step cannot use reference %r: %s", reference.name, exc)
+            return UnusableInputError(f"reference {reference.name!r}: {exc}")
 
-    def estimate(self, prepared: IcpReference | None, query: Query, hypotheses: Hypotheses) -> Estimate | None:
-        """The step's estimate for ``query`` (None without a prepared reference or query points)."""
+    def estimate(
+        self, prepared: IcpReference | UnusableInputError | None, query: Query, hypotheses: Hypotheses
+    ) -> Estimate | None:
+        """The step's estimate for ``query`` (None without a reference scan/cloud or query points).
+
+        Raises :class:`~factorloc.errors.UnusableInputError` when the reference's or the query's scan is present
+        but unusable (the pipeline reports ``unusable: <why>``).
+        """
+        if isinstance(prepared, UnusableInputError):
+            raise prepared
         if prepared is None:
             return None
-        pts = query_points(query, self.config)
+        try:
+            pts = query_points(query, self.config)
+        except InputError as exc:
+            raise UnusableInputError(f"query scan: {exc}") from exc
         if pts is None:
             return None
-        return estimate(prepared, pts, hypotheses, self.config, query_from_cloud=query.scan is None)
+        kept = bounded_points(pts)
+        est = estimate(prepared, kept, hypotheses, self.config, query_from_cloud=query.scan is None)
+        notes = {}
+        if len(kept) < len(pts):
+            notes["downsampled_query_points"] = [len(pts), len(kept)]
+        if prepared.n_given_points > len(prepared.points_m):
+            notes["downsampled_reference_points"] = [prepared.n_given_points, len(prepared.points_m)]
+        return replace(est, diagnostics={**est.diagnostics, **notes}) if notes else est

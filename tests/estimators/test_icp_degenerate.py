@@ -1,0 +1,101 @@
+"""Issue #21, reproducer 8: degenerate geometry is detected, not fused — a straight wall leaves the position along it
+to the other steps, a round scan leaves the heading to them, and present-but-unusable inputs are reported as
+``unusable: <why>`` with a typed check, not as "inputs absent"."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import factorloc as fl
+from factorloc.estimators.icp.covariance import MIN_HEADING_STRENGTH
+from factorloc.gating import StepRun, gate
+
+TRUTH = fl.Pose2(0.0, 0.0, 0.0)
+ODOMETRY = fl.Odometry(fl.Pose2(0.2, 0.05, 0.03), 0.3, 0.3, 0.1)
+
+
+def _wall(rng: np.random.Generator, n: int = 400) -> np.ndarray:
+    x = np.linspace(-5.0, 5.0, n)
+    return np.stack([x, np.full(n, 2.0)], axis=1) + rng.normal(0.0, 0.005, (n, 2))
+
+
+def _circle(rng: np.random.Generator, r: float = 3.0, n: int = 400) -> np.ndarray:
+    t = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    return np.stack([r * np.cos(t), r * np.sin(t)], axis=1) + rng.normal(0.0, 0.005, (n, 2))
+
+
+def _icp(loc: fl.Localization):
+    return next(r for r in loc.steps if r.name == "icp")
+
+
+def test_a_straight_wall_does_not_fuse_a_position_along_it():
+    rng = np.random.default_rng(0)
+    loc = fl.localize(fl.Reference(scan=fl.Scan(_wall(rng))), fl.Query(scan=fl.Scan(_wall(rng)), odometry=ODOMETRY))
+    icp = _icp(loc).estimate
+    assert icp is not None and icp.sigma("x") > 10.0  # unknown along the wall (x)
+    assert icp.sigma("y") < 0.1  # known across it (σ across the wall itself 1 cm; with the heading's lever arm 5 cm)
+    sigma = np.sqrt(np.diag(loc.covariance))
+    assert sigma[0] == pytest.approx(ODOMETRY.sigma_x_m, rel=0.01)  # along the wall: the odometry's σ, not ICP's
+    assert abs(loc.pose.x - TRUTH.x) <= 3.0 * sigma[0] and abs(loc.pose.y - TRUTH.y) <= 3.0 * sigma[1]
+
+
+def test_a_round_scan_does_not_fuse_a_heading():
+    rng = np.random.default_rng(1)
+    loc = fl.localize(fl.Reference(scan=fl.Scan(_circle(rng))), fl.Query(scan=fl.Scan(_circle(rng)), odometry=ODOMETRY))
+    report = _icp(loc)
+    assert report.status is fl.StepStatus.FUSED
+    assert report.estimate.kind == "position"  # the heading is left to the other steps
+    (check,) = [c for c in report.estimate.checks if c.code == "icp.constraint.heading"]
+    assert check.passed and check.value < MIN_HEADING_STRENGTH and "left to the other steps" in check.note
+    assert "heading unconstrained" in report.reason
+    assert math.sqrt(loc.covariance[2, 2]) == pytest.approx(ODOMETRY.sigma_theta_rad, rel=1e-6)
+
+
+def test_a_room_keeps_its_heading():
+    rng = np.random.default_rng(2)
+    t = np.linspace(0.0, 1.0, 100)
+    room = np.concatenate([np.stack([4 * t, 0 * t]), np.stack([4 + 0 * t, 3 * t]), np.stack([4 * t, 3 + 0 * t])], axis=1).T
+    room = room - [2.0, 1.5] + rng.normal(0.0, 0.005, room.shape)
+    loc = fl.localize(fl.Reference(scan=fl.Scan(room)), fl.Query(scan=fl.Scan(room), odometry=ODOMETRY))
+    assert _icp(loc).estimate.kind == "full"
+
+
+@pytest.mark.parametrize(
+    ("reference", "query", "why"),
+    [
+        (
+            fl.Reference(cloud=fl.PointCloud(np.column_stack([np.arange(500.0) % 7, np.arange(500.0) % 5, np.full(500, 5.0)]))),
+            None,
+            "reference 'reference': cloud has 0 point(s) in the height band",
+        ),
+        (fl.Reference(scan=fl.Scan(np.arange(600.0).reshape(300, 2) + 2e9)), None, "beyond ±1e+09 m"),
+        (
+            None,
+            fl.PointCloud(np.column_stack([np.arange(500.0) % 7, np.arange(500.0) % 5, np.full(500, 5.0)])),
+            "query scan: cloud has 0 point(s) in the height band",
+        ),
+    ],
+)
+def test_present_but_unusable_inputs_are_reported_as_unusable(reference, query, why):
+    rng = np.random.default_rng(3)
+    ref = reference or fl.Reference(scan=fl.Scan(_wall(rng)))
+    q = fl.Query(cloud=query, odometry=ODOMETRY) if query is not None else fl.Query(scan=fl.Scan(_wall(rng)), odometry=ODOMETRY)
+    report = _icp(fl.localize(ref, q))
+    assert report.status is fl.StepStatus.SKIPPED
+    assert report.reason.startswith("unusable: ") and why in report.reason
+    assert [c.code for c in report.checks] == ["icp.inputs_usable"] and not report.checks[0].passed
+
+
+def test_absent_inputs_are_still_inputs_absent():
+    rng = np.random.default_rng(4)
+    report = _icp(fl.localize(fl.Reference(scan=fl.Scan(_wall(rng))), fl.Query(odometry=ODOMETRY)))
+    assert report.status is fl.StepStatus.SKIPPED and report.reason == "inputs absent" and report.checks == ()
+
+
+def test_the_gate_reports_unusable_with_its_check():
+    (report,) = gate([StepRun("icp", None, unusable="reference 'r': no point in range")]).reports
+    assert report.reason == "unusable: reference 'r': no point in range"
+    assert report.status is fl.StepStatus.SKIPPED and [c.code for c in report.checks] == ["icp.inputs_usable"]
