@@ -19,7 +19,7 @@ import typer
 from rich.console import Console
 
 import factorloc
-from factorloc import cli_convert, jit
+from factorloc import cli_convert, cli_sweep, jit
 from factorloc.cli_parallel import SchedulerOption, WorkersOption, batch_executor, failure_printer
 from factorloc.cli_render import (
     evaluation_steps_table,
@@ -391,6 +391,7 @@ def demo(
 
 
 cli_convert.register(app)
+cli_sweep.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()
