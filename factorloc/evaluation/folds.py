@@ -325,8 +325,9 @@ def best_on_worst_fold(reports: Sequence[FoldReport]) -> FoldReport:
 
 def format_folds(reports: Sequence[FoldReport]) -> str:
     """A fixed-width table: one row per (candidate, held-out log), the targets missed marked ``*``."""
+    w = max([18, *(len(r.candidate) for r in reports)])
     head = (
-        f"{'setting':18s} {'held out':10s} {'c.w. local':>10s} {'loop':>6s} {'all':>6s} {'local cm':>8s} "
+        f"{'setting':{w}s} {'held out':10s} {'c.w. local':>10s} {'loop':>6s} {'all':>6s} {'local cm':>8s} "
         f"{'/o3d':>5s} {'/odo':>5s} {'loops rec':>9s} {'flagged':>7s} {'ICP NEES':>8s} {'ms':>7s} {'/o3d':>6s}"
     )
     lines = [head, "-" * len(head)]
@@ -344,7 +345,7 @@ def format_folds(reports: Sequence[FoldReport]) -> str:
                 return f"{text:>{width}s}{flag}"
 
             lines.append(
-                f"{rep.candidate:18s} {f.dataset:10s} "
+                f"{rep.candidate:{w}s} {f.dataset:10s} "
                 f"{m('confidently_wrong_local', f'{100 * f.confidently_wrong_local:.2f}%', 9)}"
                 f"{m('confidently_wrong_loop', f'{100 * f.confidently_wrong_loop:.2f}%', 6)}"
                 f"{m('confidently_wrong_all', f'{100 * f.confidently_wrong_all:.2f}%', 6)}"

@@ -448,9 +448,13 @@ def evaluate(
         As in :func:`run_hierarchy`.
     progress
         As in :func:`run_hierarchy`.
-    executor, chunk_size, on_failure
-        As in :func:`run_hierarchy` (where the hierarchy runs; the fusion and the scoring run here). The
+    executor
+        As in :func:`run_hierarchy`: where the hierarchy runs (the fusion and the scoring run here). The
         report's summary counts the failed queries (``failed_queries``) and scores the others.
+    chunk_size
+        As in :func:`run_hierarchy`.
+    on_failure
+        As in :func:`run_hierarchy`.
 
     Returns
     -------
