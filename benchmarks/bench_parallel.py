@@ -65,7 +65,7 @@ def _same(a: HierarchyRun, b: HierarchyRun) -> bool:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--queries", type=int, default=300)
+    ap.add_argument("--queries", type=int, default=300, help="queries generated (or the first N of --scenario)")
     ap.add_argument("--seed", type=int, default=7)
     ap.add_argument("--warmup", type=int, default=8, help="untimed queries before each timed pass")
     ap.add_argument("--scenario", type=Path, default=None, help="a scenario directory instead of generating one")
@@ -78,6 +78,8 @@ def main() -> None:
         from factorloc.datasets import load_scenario
 
         data = evaluation_set(load_scenario(args.scenario))
+        if args.queries < len(data.cases):
+            data = _first(data, args.queries)
         print(f"loaded {len(data.cases)} queries of {data.name} in {time.perf_counter() - t0:.1f} s")
     else:
         data = evaluation_set(generate_scenario("apartment", args.queries, args.seed))

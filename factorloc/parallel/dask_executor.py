@@ -47,6 +47,14 @@ def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence
     return list(check_results(fn(chunk, shared), chunk))
 
 
+def _warm_up_worker() -> float:
+    """Load the compiled kernels in a worker (:func:`factorloc.jit.warm_up`): its first query is then timed
+    without numba's cache load, as in a warm process."""
+    from factorloc import jit
+
+    return jit.warm_up()
+
+
 def _import_distributed() -> Any:
     try:
         import distributed
@@ -72,6 +80,9 @@ class DaskExecutor:
     allowed_failures
         For a local cluster: how many times a task whose worker died is retried before it is reported failed
         (Dask's ``distributed.scheduler.allowed-failures``; its default is 3).
+    warm_up
+        Load the compiled kernels in every worker when the executor starts (:func:`factorloc.jit.warm_up`,
+        about a second each once numba's cache exists), so that no query's time includes it.
 
     Notes
     -----
@@ -86,6 +97,7 @@ class DaskExecutor:
         *,
         chunks_per_worker: int = 4,
         allowed_failures: int | None = None,
+        warm_up: bool = True,
     ) -> None:
         if workers is not None and scheduler is not None:
             raise InputError("DaskExecutor takes workers (a local cluster) or scheduler (an existing one), not both")
@@ -101,6 +113,7 @@ class DaskExecutor:
         self.scheduler = scheduler
         self.chunks_per_worker = int(chunks_per_worker)
         self.allowed_failures = allowed_failures
+        self.warm_up = bool(warm_up)
         self._cluster: Any = None
         self._client: Any = None
 
@@ -125,8 +138,11 @@ class DaskExecutor:
                         threads_per_worker=1,
                         processes=True,
                         dashboard_address=":0",  # a free port: the machine may run other clusters
+                        silence_logs=logging.ERROR,  # not its shutdown chatter; failures are reported here
                     )
                 self._client = distributed.Client(self._cluster)
+            if self.warm_up:
+                self._client.run(_warm_up_worker)
         except BaseException:
             self.close()
             raise

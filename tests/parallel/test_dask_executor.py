@@ -34,8 +34,9 @@ cloudpickle.register_pickle_by_value(helpers_parallel)
 
 @pytest.fixture(scope="module")
 def dask2() -> Iterator[DaskExecutor]:
-    # a task whose worker dies is reported at once (no retry), so that the dying-worker test stays short
-    with DaskExecutor(workers=2, allowed_failures=0) as ex:
+    # a task whose worker dies is reported at once (no retry), so that the dying-worker test stays short; no
+    # kernel warm-up (timings are not compared here)
+    with DaskExecutor(workers=2, allowed_failures=0, warm_up=False) as ex:
         yield ex
 
 
