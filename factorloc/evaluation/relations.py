@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -184,18 +184,22 @@ class _RelationsBatch:
     local_threshold_m: float
     open3d_max_correspondence_m: float
     model: OdometryModel
+    warmed: list[bool] = field(default_factory=list)  # filled by the process running the chunks (its own copy)
 
 
 def _relations_chunk(chunk: Sequence[_RelationInput], batch: _RelationsBatch) -> list[list[RelationResult] | TaskFailure]:
-    """The rows of each relation of one chunk; the first relation runs once untimed before (start-up costs:
-    numba's cache, Open3D's warm-up, in this process); a relation that raises gives a :class:`TaskFailure`."""
+    """The rows of each relation of one chunk; a relation that raises gives a :class:`TaskFailure`. The first
+    chunk a process runs starts with its first relation once untimed (start-up costs: numba's cache, Open3D's
+    warm-up)."""
+    warm_up = [] if batch.warmed else list(chunk[:1])
+    batch.warmed.append(True)
     out: list[list[RelationResult] | TaskFailure] = []
-    for k, item in enumerate([*chunk[:1], *chunk]):
+    for k, item in enumerate([*warm_up, *chunk]):
         try:
             rows = _relation_rows(item, batch)
         except Exception as exc:  # counted and reported by index; the batch goes on
             rows = failure_of(exc)
-        if k > 0:
+        if k >= len(warm_up):
             out.append(rows)
     return out
 

@@ -95,9 +95,9 @@ class HierarchyRun:
     ``peak_memory_mb`` is the process's peak resident set size after the run
     (``getrusage(RUSAGE_SELF).ru_maxrss``): it includes the loaded scenario.
     ``prepare_seconds`` is each step's reference-only work, summed over the
-    references used (over the chunks, on an executor that splits a reference's
-    queries). With workers, ``peak_memory_mb`` is the largest of this process's
-    and the workers'. ``failures`` are the queries that raised (not in ``runs``).
+    references used (and over the worker processes, each of which prepares a
+    reference once). With workers, ``peak_memory_mb`` is the largest of this
+    process's and the workers'. ``failures`` are the queries that raised (not in ``runs``).
     """
 
     dataset: EvaluationSet
@@ -208,10 +208,10 @@ def run_hierarchy(
         Called as ``progress(done, total)`` as queries finish.
     executor
         Where the queries run (:mod:`factorloc.parallel`; default in this process). The queries are split in
-        chunks of one reference each; each chunk prepares its reference once (:class:`~factorloc.Localizer`),
+        chunks of one reference each; each process prepares a reference once (:class:`~factorloc.Localizer`),
         each query is timed by the worker that ran it. The results do not depend on the executor.
     chunk_size
-        Queries per chunk (default: the executor's choice; in process, all the queries of a reference).
+        Queries per chunk (default: the executor's choice; in process, one).
     on_failure
         Called with each :class:`QueryFailure` as it is known (a query that raised, a worker that died).
 

@@ -119,9 +119,10 @@ def failure_of(exc: BaseException, *, worker_died: bool = False) -> TaskFailure:
 
 
 class SerialExecutor:
-    """Runs every chunk in this process, one after another: the default (today's behaviour, no new import).
+    """Runs every chunk in this process, one after another: the default (no new import).
 
-    ``chunk_size=None`` makes one chunk per group (one reference prepared once for all its queries).
+    ``chunk_size=None`` makes one chunk per item (progress after each; what a chunk function memoizes in
+    ``shared``, e.g. a prepared reference, serves all of them).
     """
 
     @property
@@ -150,7 +151,7 @@ class SerialExecutor:
         n = len(items)
         done = failed = 0
         order = InputOrder(n)
-        for idx in chunk_indices(n, chunk_size or max(1, n), group):
+        for idx in chunk_indices(n, chunk_size or 1, group):
             chunk = [items[i] for i in idx]
             try:
                 results: Sequence[Any] = check_results(fn(chunk, shared), chunk)

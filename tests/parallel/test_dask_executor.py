@@ -7,6 +7,7 @@ verdicts and estimates through their JSON (shortest round-trip reprs of the floa
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 from collections.abc import Iterator, Sequence
@@ -82,6 +83,15 @@ def test_a_query_that_raises_in_a_worker_is_reported_by_id_the_others_kept(dask2
     assert evaluate(parallel).summary().failed_queries == 1
 
 
+def _close(a: Any, b: Any) -> bool:
+    """Equal, floats within 1e-9 relative (nested dicts and lists)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or (math.isnan(a) and math.isnan(b)) or math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+    return a == b
+
+
 def test_the_relations_benchmark_on_a_real_log_subset_is_identical_on_two_workers(dask2: DaskExecutor, shared_data: Path) -> None:
     laser = shared_data / "laser"
     log = read_laser_log(laser / "mit-csail.sort.bag")
@@ -90,11 +100,16 @@ def test_the_relations_benchmark_on_a_real_log_subset_is_identical_on_two_worker
     parallel = relations_benchmark(log, rel, executor=dask2, chunk_size=5)
     assert len(serial) == len(parallel) > 0
 
-    def row(r: Any) -> str:
-        d = {k: v for k, v in vars(r).items() if k != "seconds"}
-        return json.dumps(_without_times(d), sort_keys=True, default=str)
+    def fields(r: Any) -> dict:
+        return _without_times({k: v for k, v in vars(r).items() if k != "seconds"})
 
-    assert [row(r) for r in parallel] == [row(r) for r in serial]
+    ours = [(json.dumps(fields(a), sort_keys=True, default=str), json.dumps(fields(b), sort_keys=True, default=str))
+            for a, b in zip(serial, parallel, strict=True) if not a.method.startswith("open3d")]  # fmt: skip
+    assert len(ours) == 3 * len(rel) and all(a == b for a, b in ours)  # ours, ours_icp, odometry: bit for bit
+    # Open3D's ICP reduces over OpenMP threads: its rows depend on its thread count (the workers run one thread,
+    # this process as many as cores), in the last digits only
+    peers = [(fields(a), fields(b)) for a, b in zip(serial, parallel, strict=True) if a.method.startswith("open3d")]
+    assert len(peers) == 2 * len(rel) and all(_close(a, b) for a, b in peers)
     assert {r.kind for r in serial} == {"local", "loop"}
 
 
