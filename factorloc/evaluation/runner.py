@@ -97,7 +97,8 @@ class HierarchyRun:
     ``prepare_seconds`` is each step's reference-only work, summed over the
     references used (and over the worker processes, each of which prepares a
     reference once). With workers, ``peak_memory_mb`` is the largest of this
-    process's and the workers'. ``failures`` are the queries that raised (not in ``runs``).
+    process's and the workers'. ``failures`` are the queries that raised (not in ``runs``);
+    ``preparations`` counts the references prepared (once per reference and process).
     """
 
     dataset: EvaluationSet
@@ -108,6 +109,7 @@ class HierarchyRun:
     peak_memory_mb: float
     step_names: tuple[str, ...]
     failures: tuple[QueryFailure, ...] = ()
+    preparations: int = 0
 
 
 def peak_memory_mb() -> float:
@@ -230,6 +232,7 @@ def run_hierarchy(
     batch = _Batch(references, cfg, None if steps is None else tuple(steps), bool(seeded))
     cb = None if progress is None else (lambda done, total, failed: progress(done, total))
     prepare_seconds: dict[str, float] = {}
+    preparations = 0
     runs: list[QueryRun] = []
     failures: list[QueryFailure] = []
     peak = peak_memory_mb()
@@ -243,8 +246,10 @@ def run_hierarchy(
             if on_failure is not None:
                 on_failure(failure)
             continue
-        for name, sec in (result.prepare_seconds or {}).items():  # reference-only work, once per chunk
-            prepare_seconds[name] = prepare_seconds.get(name, 0.0) + sec
+        if result.prepare_seconds is not None:  # reference-only work, once per reference and process
+            preparations += 1
+            for name, sec in result.prepare_seconds.items():
+                prepare_seconds[name] = prepare_seconds.get(name, 0.0) + sec
         if math.isfinite(result.peak_memory_mb):
             peak = max(peak, result.peak_memory_mb)
         runs.append(QueryRun(i, case, result.localization.steps, result.localization, result.seconds))
@@ -257,6 +262,7 @@ def run_hierarchy(
         max(peak, peak_memory_mb()),
         step_names,
         tuple(failures),
+        preparations,
     )
 
 

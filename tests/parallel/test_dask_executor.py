@@ -69,6 +69,8 @@ def test_evaluate_on_the_sample_is_identical_on_two_workers(dask2: DaskExecutor,
     for key in ("position_rmse_m", "heading_rmse_deg", "nees_mean", "confidently_wrong_count", "determined_rate"):
         assert s[key] == p[key]
     assert p["failed_queries"] == 0 and set(parallel.run.prepare_seconds) == set(serial.run.prepare_seconds)
+    # one reference: prepared once in process, once per worker (not once per chunk: 8 chunks)
+    assert serial.run.preparations == 1 and 1 <= parallel.run.preparations <= 2
 
 
 def test_a_query_that_raises_in_a_worker_is_reported_by_id_the_others_kept(dask2: DaskExecutor, make_room_scenario: Any) -> None:
