@@ -5,8 +5,9 @@
 running cluster. Dask is imported when the executor starts, never at ``import factorloc``; without the extra
 (``pip install factorloc[dask]``) starting raises a :class:`~factorloc.errors.ConfigError` saying so.
 
-One chunk is one Dask task (``client.submit(..., pure=False)``: no hashing of the inputs); the ``shared`` object
-is scattered to every worker once (``client.scatter(broadcast=True)``). Results are
+One chunk is one Dask task (``client.submit(..., pure=False)``: no hashing of the inputs) whose items are
+scattered to a worker first; the ``shared`` object is scattered to every worker once
+(``client.scatter(broadcast=True)``). Results are
 released in input order as the chunks finish. A chunk whose function raised, or whose worker died more often
 than the scheduler allows (``distributed.scheduler.allowed-failures``), yields a
 :class:`~factorloc.parallel.base.TaskFailure` per item; the other chunks go on. An interrupt (``Ctrl-C``)
@@ -195,7 +196,9 @@ class DaskExecutor:
         chunks = chunk_indices(n, size, group)
         # ``shared`` goes to every worker once; each task names it, the worker hands its own copy to the function
         shared_future = client.scatter(shared, broadcast=True, hash=False) if chunks else None
-        futures = [client.submit(_run_chunk, fn, [items[i] for i in idx], shared_future, pure=False) for idx in chunks]
+        # each chunk's items go straight to a worker (not inside the task graph through the scheduler)
+        data = client.scatter([[items[i] for i in idx] for idx in chunks], hash=False) if chunks else []
+        futures = [client.submit(_run_chunk, fn, d, shared_future, pure=False) for d in data]
         index_of = {f.key: idx for f, idx in zip(futures, chunks, strict=True)}
         order = InputOrder(n)
         done = failed = 0
@@ -212,6 +215,8 @@ class DaskExecutor:
             pending = [f for f in futures if not f.done()]
             if pending:
                 client.cancel(pending)
+            for d in data:
+                d.release()
             if shared_future is not None:
                 shared_future.release()
 
