@@ -105,4 +105,4 @@ test-latest:
 	rm -rf $(LATEST_VENV)
 
 clean:
-	rm -rf $(VENV) $(LATEST_VENV) build *.egg-info .pytest_cache .hypothesis site factorloc-demo docs/tutorials docs/assets/generated
+	rm -rf $(VENV) $(LATEST_VENV) build *.egg-info .pytest_cache .hypothesis site factorloc-demo factorloc-sweep docs/tutorials docs/assets/generated

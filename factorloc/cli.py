@@ -21,7 +21,8 @@ import typer
 from rich.console import Console
 
 import factorloc
-from factorloc import cli_convert, cli_map, jit
+from factorloc import cli_convert, cli_map, cli_sweep, jit
+from factorloc.cli_parallel import SchedulerOption, WorkersOption, batch_executor, failure_printer
 from factorloc.cli_render import (
     evaluation_steps_table,
     evaluation_summary_table,
@@ -172,12 +173,20 @@ def fuse(
 # ----------------------------------------------------------------------------
 # evaluate
 # ----------------------------------------------------------------------------
-def _run_evaluation(scenario: Any, cfg: factorloc.Config | None, label: str) -> Any:
-    """Evaluate ``scenario`` with a progress bar; returns the EvaluationReport."""
+def _run_evaluation(
+    scenario: Any, cfg: factorloc.Config | None, label: str, workers: int | None = None, scheduler: str | None = None
+) -> Any:
+    """Evaluate ``scenario`` with a progress bar (on the executor the options ask for); returns the EvaluationReport."""
     from factorloc.evaluation import evaluate as evaluate_scenario
 
-    with progress(console) as advance:
-        return evaluate_scenario(scenario, config=cfg, progress=lambda done, total: advance(label, done, total))
+    with batch_executor(console, workers, scheduler) as ex, progress(console) as advance:
+        return evaluate_scenario(
+            scenario,
+            config=cfg,
+            progress=lambda done, total: advance(label, done, total),
+            executor=ex,
+            on_failure=failure_printer(console),
+        )
 
 
 @app.command()
@@ -189,14 +198,18 @@ def evaluate(
         Path | None, typer.Option("--json", help="Write every figure as JSON (keys in docs/evaluation.md).")
     ] = None,
     plot: Annotated[Path | None, typer.Option("--plot", help="Write the figures (PNG) into this directory.")] = None,
+    workers: WorkersOption = None,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Localize every query of a scenario; report accuracy, honesty, availability and speed."""
     from factorloc.datasets import load_scenario
 
     cfg = _load_config(config)
     scen = load_scenario(scenario)
-    report = _run_evaluation(scen, cfg, f"localizing {scen.name}")
+    report = _run_evaluation(scen, cfg, f"localizing {scen.name}", workers, scheduler)
     summary = report.summary()
+    if summary.failed_queries:
+        console.print(f"[red]{summary.failed_queries} of {len(scen.queries)} queries failed[/] (scored: the others)")
     console.print(evaluation_summary_table(summary, f"{scen.name}: fused pose ({summary.strategy})"))
     console.print(evaluation_steps_table(summary))
     reasons = gate_reasons_text(summary)
@@ -247,6 +260,8 @@ def bench(
     seed: Annotated[int, typer.Option("--seed", help="Seed of the generated scenario.")] = 7,
     repeats: Annotated[int, typer.Option("--repeats", min=1, help="Passes over the queries (figures are medians).")] = 3,
     config: Annotated[Path | None, typer.Option("--config", help="YAML configuration (defaults otherwise).")] = None,
+    workers: WorkersOption = None,
+    scheduler: SchedulerOption = None,
 ) -> None:
     """Speed as ratios against peers in the same run: localize, seeded vs blind, ICP vs Open3D, GTSAM vs product, cost curve."""
     from factorloc.benchmarking import BenchSettings, run_bench
@@ -262,8 +277,8 @@ def bench(
     else:
         scen = _generated_scenario(200 if queries is None else queries, seed)
     settings = BenchSettings(repeats=repeats, cost_queries=min(20, len(scen.queries)))
-    with progress(console, eta=False) as advance:
-        report = run_bench(scen, cfg, settings=settings, progress=advance)
+    with batch_executor(console, workers, scheduler) as ex, progress(console, eta=False) as advance:
+        report = run_bench(scen, cfg, settings=settings, progress=advance, executor=ex)
     if json_out is not None:
         _write_json(json_out, report.to_json())
     for t in bench_tables(report):
@@ -419,6 +434,7 @@ def demo(
 
 cli_convert.register(app)
 cli_map.register(app)
+cli_sweep.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()

@@ -41,7 +41,19 @@ def _loaded(modules: list[str], package: str) -> list[str]:
 
 def test_import_factorloc_loads_neither_the_simulator_nor_the_baselines_nor_the_heavy_libraries() -> None:
     modules = _modules_after("import factorloc")
-    for package in (*OUTSIDE_THE_CORE, "open3d", "cv2", "gtsam", "numba", "scipy", "typer", "rich", "matplotlib"):
+    for package in (
+        *OUTSIDE_THE_CORE,
+        "open3d",
+        "cv2",
+        "gtsam",
+        "numba",
+        "scipy",
+        "typer",
+        "rich",
+        "matplotlib",
+        "dask",
+        "distributed",
+    ):
         assert not _loaded(modules, package), f"import factorloc imported {package}"
 
 

@@ -17,6 +17,7 @@ from factorloc.benchmarking.timing import bench_fusion, bench_icp_vs_open3d, ben
 from factorloc.config import Config
 from factorloc.evaluation.cases import evaluation_set
 from factorloc.evaluation.runner import HierarchyRun, run_hierarchy
+from factorloc.parallel import Executor
 
 __all__ = ["run_bench"]
 
@@ -35,6 +36,7 @@ def run_bench(
     *,
     settings: BenchSettings = BenchSettings(),
     progress: BenchProgress | None = None,
+    executor: Executor | None = None,
 ) -> BenchReport:
     """All the benchmarks on one scenario (``to_json()``: the keys in ``docs/evaluation.md``).
 
@@ -49,6 +51,9 @@ def run_bench(
     progress
         ``progress(stage, done, total)``; stages: ``"seeded"``, ``"blind"``,
         ``"icp vs open3d"``, ``"fusion"``, ``"cost curve"``.
+    executor
+        Where the seeded and blind passes run (:mod:`factorloc.parallel`; default in this process). Per-query
+        times are the workers' own; the other benchmarks run here.
     """
     data = evaluation_set(scenario)
     cfg = config or Config()
@@ -57,7 +62,7 @@ def run_bench(
         runs = []
         for k in range(settings.repeats):
             cb = None if progress is None else (lambda d, t, k=k: progress(label, k * t + d, settings.repeats * t))
-            runs.append(run_hierarchy(data, cfg, seeded=seeded, progress=cb))
+            runs.append(run_hierarchy(data, cfg, seeded=seeded, progress=cb, executor=executor))
         return runs
 
     t_start = time.perf_counter()

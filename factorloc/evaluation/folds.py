@@ -38,6 +38,7 @@ from factorloc.evaluation.relations import (
     relations_benchmark,
     relations_config,
 )
+from factorloc.parallel import Executor
 
 __all__ = [
     "LOGS",
@@ -275,12 +276,21 @@ def relations_folds(
     *,
     methods: Sequence[str] = METHODS,
     progress: Callable[[str], None] | None = None,
+    executor: Executor | None = None,
+    batch_progress: Callable[[str, int, int], None] | None = None,
 ) -> list[FoldReport]:
     """Every candidate on every leave-one-log-out fold of ``datasets`` (at least two logs).
 
     A candidate without ``fit`` runs once per log; one with ``fit`` also runs its fitted setting on each
-    held-out log. ``progress`` is called with a line of text after each run (the library does not print).
+    held-out log. ``progress`` is called with a line of text after each run (the library does not print),
+    ``batch_progress(log, done, total)`` as the relations of a run finish. ``executor`` is where the relations
+    run (:func:`~factorloc.evaluation.relations.relations_benchmark`; default in process).
     """
+
+    def bench(d: LaserDataset, config: Config) -> list[RelationResult]:
+        cb = None if batch_progress is None else (lambda done, total: batch_progress(d.name, done, total))
+        return relations_benchmark(d.log, d.relations, methods=methods, config=config, executor=executor, progress=cb)
+
     if len(datasets) < 2:
         raise InputError(f"relations_folds needs at least two logs, got {len(datasets)}")
     names = [d.name for d in datasets]
@@ -288,7 +298,7 @@ def relations_folds(
         raise InputError(f"relations_folds needs distinct log names, got {names}")
     out = []
     for cand in candidates:
-        base = {d.name: relations_benchmark(d.log, d.relations, methods=methods, config=cand.config) for d in datasets}
+        base = {d.name: bench(d, cand.config) for d in datasets}
         if progress is not None:
             progress(f"{cand.name}: ran on {', '.join(names)}")
         folds, configs = [], []
@@ -297,7 +307,7 @@ def relations_folds(
                 cfg, res = cand.config, base[held.name]
             else:
                 cfg = cand.fit({n: r for n, r in base.items() if n != held.name}, cand.config)
-                res = relations_benchmark(held.log, held.relations, methods=methods, config=cfg)
+                res = bench(held, cfg)
                 if progress is not None:
                     progress(f"{cand.name}: fitted without {held.name}, ran on it")
             folds.append(fold_figures(res, held.name, cand.name))
@@ -315,8 +325,9 @@ def best_on_worst_fold(reports: Sequence[FoldReport]) -> FoldReport:
 
 def format_folds(reports: Sequence[FoldReport]) -> str:
     """A fixed-width table: one row per (candidate, held-out log), the targets missed marked ``*``."""
+    w = max([18, *(len(r.candidate) for r in reports)])
     head = (
-        f"{'setting':18s} {'held out':10s} {'c.w. local':>10s} {'loop':>6s} {'all':>6s} {'local cm':>8s} "
+        f"{'setting':{w}s} {'held out':10s} {'c.w. local':>10s} {'loop':>6s} {'all':>6s} {'local cm':>8s} "
         f"{'/o3d':>5s} {'/odo':>5s} {'loops rec':>9s} {'flagged':>7s} {'ICP NEES':>8s} {'ms':>7s} {'/o3d':>6s}"
     )
     lines = [head, "-" * len(head)]
@@ -334,7 +345,7 @@ def format_folds(reports: Sequence[FoldReport]) -> str:
                 return f"{text:>{width}s}{flag}"
 
             lines.append(
-                f"{rep.candidate:18s} {f.dataset:10s} "
+                f"{rep.candidate:{w}s} {f.dataset:10s} "
                 f"{m('confidently_wrong_local', f'{100 * f.confidently_wrong_local:.2f}%', 9)}"
                 f"{m('confidently_wrong_loop', f'{100 * f.confidently_wrong_loop:.2f}%', 6)}"
                 f"{m('confidently_wrong_all', f'{100 * f.confidently_wrong_all:.2f}%', 6)}"

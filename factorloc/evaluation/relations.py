@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -53,10 +53,12 @@ from factorloc.estimators.odometry import estimate as odometry_estimate
 from factorloc.evaluation.relations_report import METHODS, RelationResult, format_table, summarize, unrecovered_breakdown
 from factorloc.geometry import Pose2
 from factorloc.odometry_model import OdometryModel
+from factorloc.parallel import Executor, SerialExecutor, TaskFailure
+from factorloc.parallel.base import failure_of
 from factorloc.pipeline import Localizer
 from factorloc.registration.icp2d import prepare_target
 from factorloc.registration.open3d_peer import open3d_icp
-from factorloc.types import Estimate, Query, Reference, StepStatus
+from factorloc.types import Estimate, Query, Reference, Scan, StepStatus
 
 __all__ = [
     "METHODS",
@@ -158,6 +160,166 @@ def relations_config(base: Config | None = None) -> Config:
     )
 
 
+@dataclass(frozen=True, eq=False)
+class _RelationInput:
+    """One relation's inputs, cut from the log on the driver (a worker gets two scans, not the whole log)."""
+
+    index: int
+    t1: float
+    t2: float
+    true: Pose2
+    ref_scan: Scan
+    qry_scan: Scan
+    seed: Pose2
+    distance_m: float
+    rotation_rad: float
+
+
+@dataclass(frozen=True, eq=False)
+class _RelationsBatch:
+    """What every chunk of a :func:`relations_benchmark` needs."""
+
+    methods: tuple[str, ...]
+    config: Config
+    local_threshold_m: float
+    open3d_max_correspondence_m: float
+    model: OdometryModel
+    warmed: list[bool] = field(default_factory=list)  # filled by the process running the chunks (its own copy)
+
+
+def _relations_chunk(chunk: Sequence[_RelationInput], batch: _RelationsBatch) -> list[list[RelationResult] | TaskFailure]:
+    """The rows of each relation of one chunk; a relation that raises gives a :class:`TaskFailure`. The first
+    chunk a process runs starts with its first relation once untimed (start-up costs: numba's cache, Open3D's
+    warm-up)."""
+    warm_up = [] if batch.warmed else list(chunk[:1])
+    batch.warmed.append(True)
+    out: list[list[RelationResult] | TaskFailure] = []
+    for k, item in enumerate([*warm_up, *chunk]):
+        try:
+            rows = _relation_rows(item, batch)
+        except Exception as exc:  # counted and reported by index; the batch goes on
+            rows = failure_of(exc)
+        if k >= len(warm_up):
+            out.append(rows)
+    return out
+
+
+def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[RelationResult]:
+    """Every method of ``batch.methods`` on one relation."""
+    methods, config, i = batch.methods, batch.config, item.index
+    icp_cfg = config.icp
+    true, ref_scan, qry_scan, seed = item.true, item.ref_scan, item.qry_scan, item.seed
+    t1, t2 = item.t1, item.t2
+    kind = "local" if item.distance_m < batch.local_threshold_m else "loop"
+    odom = batch.model.odometry(seed, item.distance_m, item.rotation_rad)
+    odom_cov = np.diag([odom.sigma_x_m**2, odom.sigma_y_m**2, odom.sigma_theta_rad**2])
+    open3d_max_correspondence_m = batch.open3d_max_correspondence_m
+    out: list[RelationResult] = []
+    for m in methods:
+        if m == "ours_icp":
+            continue  # produced with "ours"
+        if m == "odometry":
+            t0 = time.perf_counter()
+            est = odometry_estimate(odom, config.odometry)
+            dt = time.perf_counter() - t0
+            et, er = _errors(true, seed)
+            wrong, d2 = _wrong(true, seed, odom_cov)
+            out.append(RelationResult(m, i, kind, et, er, est.reliable, est.reliable and wrong, dt, d2))
+        elif m == "ours":
+            t0 = time.perf_counter()
+            reference = Reference(scan=ref_scan, name=f"t1={t1:.6f}")
+            localizer = Localizer(reference, config, steps=[OdometryStep(config.odometry), IcpStep(icp_cfg)])
+            loc = localizer.localize(Query(scan=qry_scan, odometry=odom, id=f"t2={t2:.6f}"))
+            dt = time.perf_counter() - t0
+            icp_rep = loc.step("icp")
+            icp_seconds = localizer.prepare_seconds.get("icp", 0.0) + icp_rep.seconds
+            reliable = any(r.status is StepStatus.FUSED for r in loc.steps) and loc.determined
+            et, er = _errors(true, loc.pose)
+            wrong, d2 = _wrong(true, loc.pose, loc.covariance) if reliable else (False, math.nan)
+            icp_est = icp_rep.estimate
+            diag = {
+                "icp_status": icp_rep.status.value,
+                "icp_reason": icp_rep.reason,
+                "icp_failed_checks": ()
+                if icp_rep.estimate is None
+                else tuple(c.code for c in icp_rep.estimate.checks if not c.passed),
+                "icp_seconds": icp_seconds,
+                "localize_seconds": dt,
+            }
+            nees_icp = math.nan
+            # degenerate geometry (heading-only, or a position unknown along a corridor): the step vouches for no
+            # full position; its row shows the pose ICP converged to (slid along the corridor), unreliable
+            no_full_position = icp_est is not None and _position_not_measured(icp_est)
+            if icp_est is not None:
+                T_icp = Pose2.from_array(
+                    icp_est.values if icp_est.kind == "pose" else icp_est.diagnostics["T_reference_query"]
+                )  # the reference sits at the origin of the world here
+                eti, eri = _errors(true, T_icp)
+                diag.update(
+                    icp_error_translation_m=eti,
+                    icp_error_rotation_deg=eri,
+                    icp_heading_error_rad=abs(math.remainder(T_icp.theta - true.theta, 2 * math.pi)),
+                    icp_reliable=icp_est.reliable and not no_full_position,
+                )
+            if no_full_position:
+                diag.update(icp_no_full_position=True)
+            elif icp_est is not None:
+                e = _position_error_world(true, T_icp)
+                nees_icp = float(e @ np.linalg.solve(icp_est.covariance[:2, :2], e))
+                diag.update(
+                    icp_nees_position=nees_icp,
+                    icp_sigma_theta_rad=icp_est.sigma("theta"),
+                    **{
+                        k: v
+                        for k, v in icp_est.diagnostics.items()
+                        if k in ("fitness", "rmse_m", "chamfer_m", "violation", "global_score", "rival_score")
+                    },
+                )
+            used_global = bool(icp_est is not None and icp_est.diagnostics.get("used_global_init", False))
+            out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, icp_seconds, d2, used_global, diag))
+            if "ours_icp" in methods:
+                if no_full_position:
+                    out.append(RelationResult("ours_icp", i, kind, eti, eri, False, False, icp_seconds, math.nan, False, diag))
+                elif icp_est is None:
+                    out.append(RelationResult("ours_icp", i, kind, math.inf, math.inf, False, False, icp_seconds))
+                else:
+                    wrong_i, _ = _wrong(true, T_icp, icp_est.covariance)
+                    out.append(
+                        RelationResult(
+                            "ours_icp",
+                            i,
+                            kind,
+                            eti,
+                            eri,
+                            icp_est.reliable,
+                            icp_est.reliable and wrong_i,
+                            icp_seconds,
+                            nees_icp,
+                            used_global,
+                            diag,
+                        )
+                    )
+        else:
+            method = "point_to_point" if m == "open3d_p2p" else "point_to_plane"
+            t0 = time.perf_counter()
+            normals = prepare_target(ref_scan.points_m, icp_cfg.alignment.icp).normals if method == "point_to_plane" else None
+            res = open3d_icp(
+                ref_scan.points_m,
+                qry_scan.points_m,
+                seed,
+                method=method,
+                target_normals=normals,
+                max_correspondence_m=open3d_max_correspondence_m,
+            )
+            dt = time.perf_counter() - t0
+            est = res.T_target_source
+            reliable = res.fitness >= icp_cfg.reliability.min_fitness
+            et, er = _errors(true, est)
+            wrong, d2 = _wrong(true, est, odom_cov)
+            out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, dt, d2, False, {"fitness": res.fitness}))
+    return out
+
+
 def relations_benchmark(
     log: LaserLog,
     relations: Relations,
@@ -168,33 +330,47 @@ def relations_benchmark(
     tolerance_s: float = 2e-3,
     open3d_max_correspondence_m: float = 0.5,
     odometry_model: OdometryModel | None = None,
+    executor: Executor | None = None,
+    chunk_size: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    on_failure: Callable[[int, str], None] | None = None,
 ) -> list[RelationResult]:
     """Run every method of ``methods`` on every relation; one :class:`RelationResult` per (method, relation).
 
-    Parameters
-    ----------
-    log
-        The laser log (scans and odometry).
-    relations
-        Its ground-truth relations.
-    methods
-        Any of :data:`METHODS`.
-    config
-        The configuration of ``ours`` (and the fitness threshold of the Open3D peers);
-        default :func:`relations_config`.
-    local_threshold_m
-        Odometry path length separating local from loop relations.
-    tolerance_s
-        Largest difference between a relation time and its scan's stamp.
-    open3d_max_correspondence_m
-        Open3D's correspondence distance.
-    odometry_model
-        How the odometry σ grows with the motion (default :class:`OdometryModel`).
+        Parameters
+        ----------
+        log
+            The laser log (scans and odometry).
+        relations
+            Its ground-truth relations.
+        methods
+            Any of :data:`METHODS`.
+        config
+            The configuration of ``ours`` (and the fitness threshold of the Open3D peers);
+            default :func:`relations_config`.
+        local_threshold_m
+            Odometry path length separating local from loop relations.
+        tolerance_s
+            Largest difference between a relation time and its scan's stamp.
+        open3d_max_correspondence_m
+            Open3D's correspondence distance.
+        odometry_model
+            How the odometry σ grows with the motion (default :class:`OdometryModel`).
+        executor
+            Where the relations run (:mod:`factorloc.parallel`; default in this process), in chunks of
+            ``chunk_size`` relations (default: the executor's choice; in process, one chunk). The rows do not
+            depend on the executor, except the measured times.
+        progress
+            Called as ``progress(done, total)`` with relation counts as chunks finish.
+        on_failure
+            Called as ``on_failure(relation_index, error)`` for a relation that raised (its rows are left out);
+            without it, such a relation raises a :class:`~factorloc.errors.DatasetError` once the batch is done.
 
-    Notes
-    -----
-    Summarize with :func:`summarize` (the table) and :func:`format_table`. The first relation is run
-    once untimed before the timed pass (start-up costs: numba cache load, Open3D warm-up).
+        Notes
+        -----
+        Summarize with :func:`summarize` (the table) and :func:`format_table`. The first relation is run
+        once untimed before the timed pass (start-up costs: numba cache load, Open3D warm-up): the first relation of
+    every chunk, on an executor that splits them.
     """
     methods = list(methods)
     if "ours_icp" in methods and "ours" not in methods:
@@ -203,128 +379,37 @@ def relations_benchmark(
     if bad:
         raise InputError(f"unknown method(s) {bad}; known: {list(METHODS)}")
     config = config or relations_config()
-    model = odometry_model or OdometryModel()
-    out: list[RelationResult] = []
-    icp_cfg = config.icp
-    # the first relation runs twice: the untimed first pass loads numba's compiled ICP core and warms
-    # Open3D, so that no method's one-off start-up cost lands in its per-pair time
-    order = ([0] if len(relations) else []) + list(range(len(relations)))
-    for pass_i, i in enumerate(order):
-        if pass_i == 1:
-            out.clear()
+    batch = _RelationsBatch(
+        tuple(methods), config, float(local_threshold_m), float(open3d_max_correspondence_m), odometry_model or OdometryModel()
+    )
+    items = []
+    for i in range(len(relations)):
         t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
-        true = Pose2.from_array(relations.poses[i])
-        ref_scan = log.scans.at(t1, tolerance_s)
-        qry_scan = log.scans.at(t2, tolerance_s)
-        seed = log.odometry.between(t1, t2)
         dist, rot = log.odometry.distance_between(t1, t2)
-        kind = "local" if dist < local_threshold_m else "loop"
-        odom = model.odometry(seed, dist, rot)
-        odom_cov = np.diag([odom.sigma_x_m**2, odom.sigma_y_m**2, odom.sigma_theta_rad**2])
-        for m in methods:
-            if m == "ours_icp":
-                continue  # produced with "ours"
-            if m == "odometry":
-                t0 = time.perf_counter()
-                est = odometry_estimate(odom, config.odometry)
-                dt = time.perf_counter() - t0
-                et, er = _errors(true, seed)
-                wrong, d2 = _wrong(true, seed, odom_cov)
-                out.append(RelationResult(m, i, kind, et, er, est.reliable, est.reliable and wrong, dt, d2))
-            elif m == "ours":
-                t0 = time.perf_counter()
-                reference = Reference(scan=ref_scan, name=f"t1={t1:.6f}")
-                localizer = Localizer(reference, config, steps=[OdometryStep(config.odometry), IcpStep(icp_cfg)])
-                loc = localizer.localize(Query(scan=qry_scan, odometry=odom, id=f"t2={t2:.6f}"))
-                dt = time.perf_counter() - t0
-                icp_rep = loc.step("icp")
-                icp_seconds = localizer.prepare_seconds.get("icp", 0.0) + icp_rep.seconds
-                reliable = any(r.status is StepStatus.FUSED for r in loc.steps) and loc.determined
-                et, er = _errors(true, loc.pose)
-                wrong, d2 = _wrong(true, loc.pose, loc.covariance) if reliable else (False, math.nan)
-                icp_est = icp_rep.estimate
-                diag = {
-                    "icp_status": icp_rep.status.value,
-                    "icp_reason": icp_rep.reason,
-                    "icp_failed_checks": ()
-                    if icp_rep.estimate is None
-                    else tuple(c.code for c in icp_rep.estimate.checks if not c.passed),
-                    "icp_seconds": icp_seconds,
-                    "localize_seconds": dt,
-                }
-                nees_icp = math.nan
-                # degenerate geometry (heading-only, or a position unknown along a corridor): the step vouches for no
-                # full position; its row shows the pose ICP converged to (slid along the corridor), unreliable
-                no_full_position = icp_est is not None and _position_not_measured(icp_est)
-                if icp_est is not None:
-                    T_icp = Pose2.from_array(
-                        icp_est.values if icp_est.kind == "pose" else icp_est.diagnostics["T_reference_query"]
-                    )  # the reference sits at the origin of the world here
-                    eti, eri = _errors(true, T_icp)
-                    diag.update(
-                        icp_error_translation_m=eti,
-                        icp_error_rotation_deg=eri,
-                        icp_heading_error_rad=abs(math.remainder(T_icp.theta - true.theta, 2 * math.pi)),
-                        icp_reliable=icp_est.reliable and not no_full_position,
-                    )
-                if no_full_position:
-                    diag.update(icp_no_full_position=True)
-                elif icp_est is not None:
-                    e = _position_error_world(true, T_icp)
-                    nees_icp = float(e @ np.linalg.solve(icp_est.covariance[:2, :2], e))
-                    diag.update(
-                        icp_nees_position=nees_icp,
-                        icp_sigma_theta_rad=icp_est.sigma("theta"),
-                        **{
-                            k: v
-                            for k, v in icp_est.diagnostics.items()
-                            if k in ("fitness", "rmse_m", "chamfer_m", "violation", "global_score", "rival_score")
-                        },
-                    )
-                used_global = bool(icp_est is not None and icp_est.diagnostics.get("used_global_init", False))
-                out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, icp_seconds, d2, used_global, diag))
-                if "ours_icp" in methods:
-                    if no_full_position:
-                        out.append(
-                            RelationResult("ours_icp", i, kind, eti, eri, False, False, icp_seconds, math.nan, False, diag)
-                        )
-                    elif icp_est is None:
-                        out.append(RelationResult("ours_icp", i, kind, math.inf, math.inf, False, False, icp_seconds))
-                    else:
-                        wrong_i, _ = _wrong(true, T_icp, icp_est.covariance)
-                        out.append(
-                            RelationResult(
-                                "ours_icp",
-                                i,
-                                kind,
-                                eti,
-                                eri,
-                                icp_est.reliable,
-                                icp_est.reliable and wrong_i,
-                                icp_seconds,
-                                nees_icp,
-                                used_global,
-                                diag,
-                            )
-                        )
-            else:
-                method = "point_to_point" if m == "open3d_p2p" else "point_to_plane"
-                t0 = time.perf_counter()
-                normals = prepare_target(ref_scan.points_m, icp_cfg.alignment.icp).normals if method == "point_to_plane" else None
-                res = open3d_icp(
-                    ref_scan.points_m,
-                    qry_scan.points_m,
-                    seed,
-                    method=method,
-                    target_normals=normals,
-                    max_correspondence_m=open3d_max_correspondence_m,
-                )
-                dt = time.perf_counter() - t0
-                est = res.T_target_source
-                reliable = res.fitness >= icp_cfg.reliability.min_fitness
-                et, er = _errors(true, est)
-                wrong, d2 = _wrong(true, est, odom_cov)
-                out.append(
-                    RelationResult(m, i, kind, et, er, reliable, reliable and wrong, dt, d2, False, {"fitness": res.fitness})
-                )
+        items.append(
+            _RelationInput(
+                i,
+                t1,
+                t2,
+                Pose2.from_array(relations.poses[i]),
+                log.scans.at(t1, tolerance_s),
+                log.scans.at(t2, tolerance_s),
+                log.odometry.between(t1, t2),
+                dist,
+                rot,
+            )
+        )
+    ex = executor if executor is not None else SerialExecutor()
+    cb = None if progress is None else (lambda done, total, failed: progress(done, total))
+    out: list[RelationResult] = []
+    failed: list[tuple[int, str]] = []
+    for item, rows in zip(items, ex.map_chunks(_relations_chunk, items, chunk_size, shared=batch, progress=cb), strict=True):
+        if isinstance(rows, TaskFailure):
+            failed.append((item.index, rows.error))
+            if on_failure is not None:
+                on_failure(item.index, rows.error)
+            continue
+        out.extend(rows)
+    if failed and on_failure is None:
+        raise DatasetError(f"{len(failed)} relation(s) failed: " + "; ".join(f"relation {i}: {e}" for i, e in failed[:5]))
     return out

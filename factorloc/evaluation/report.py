@@ -22,7 +22,7 @@ from factorloc.evaluation.reasons import RuleTally, tally_reasons
 from factorloc.types import StepReport, StepStatus
 
 if TYPE_CHECKING:  # pragma: no cover
-    from factorloc.evaluation.runner import HierarchyRun, QueryResult
+    from factorloc.evaluation.runner import HierarchyRun, QueryFailure, QueryResult
 
 __all__ = [
     "NO_FAULT",
@@ -134,7 +134,8 @@ class EvaluationSummary(JsonRecord):
 
     ``overall`` is over every query (its keys sit at the top level of the JSON); ``by_fault`` per fault tag
     (``"none"``: the queries without one); ``overlapping`` over the queries with an overlapping view
-    (None when there is none: ``{"queries": 0}`` in the JSON).
+    (None when there is none: ``{"queries": 0}`` in the JSON). ``failed_queries`` counts the queries that
+    raised (``failed``: their index, id and error); the figures are over the others.
     """
 
     scenario: str
@@ -149,6 +150,8 @@ class EvaluationSummary(JsonRecord):
     overlapping_rate: float
     overlapping: Summary | None
     schema_version: int = SCHEMA_VERSION
+    failed_queries: int = 0
+    failed: tuple[QueryFailure, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """The stable keys of ``docs/evaluation.md``: ``overall``'s at the top level."""
@@ -156,7 +159,16 @@ class EvaluationSummary(JsonRecord):
         out["seeded"] = self.seeded
         out.update(self.overall.to_json())
         rest = super().to_json()
-        for key in ("peak_memory_mb", "prepare_ms", "by_fault", "overlap_radius_m", "overlap_min_fraction", "overlapping_rate"):
+        for key in (
+            "failed_queries",
+            "failed",
+            "peak_memory_mb",
+            "prepare_ms",
+            "by_fault",
+            "overlap_radius_m",
+            "overlap_min_fraction",
+            "overlapping_rate",
+        ):
             out[key] = rest[key]
         out["overlapping"] = rest["overlapping"] if self.overlapping is not None else {"queries": 0}
         return out
@@ -311,6 +323,8 @@ class EvaluationReport:
                 overlap_min_fraction=OVERLAP_MIN_FRACTION,
                 overlapping_rate=_rate(overlapping, int(known.sum())),
                 overlapping=self._summary(idx[overlapping]) if overlapping.any() else None,
+                failed_queries=len(self.run.failures),
+                failed=self.run.failures,
             )
         return self._cache["summary"]
 

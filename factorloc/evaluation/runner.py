@@ -34,8 +34,8 @@ import math
 import resource
 import sys
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -49,13 +49,16 @@ from factorloc.evaluation.report import OVERLAP_RADIUS_M, EvaluationReport
 from factorloc.fusion.base import FusionStrategy, SequentialStrategy, mark_undetermined
 from factorloc.gating import StepRun, gate
 from factorloc.geometry import Pose2
-from factorloc.pipeline import Localizer, fuse_gated
+from factorloc.parallel import Executor, SerialExecutor, TaskFailure
+from factorloc.parallel.base import failure_of
+from factorloc.pipeline import Localizer, default_steps, fuse_gated
 from factorloc.types import Localization, Reference, StepReport
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "HierarchyRun",
+    "QueryFailure",
     "QueryResult",
     "QueryRun",
     "evaluate",
@@ -92,7 +95,10 @@ class HierarchyRun:
     ``peak_memory_mb`` is the process's peak resident set size after the run
     (``getrusage(RUSAGE_SELF).ru_maxrss``): it includes the loaded scenario.
     ``prepare_seconds`` is each step's reference-only work, summed over the
-    references used.
+    references used (and over the worker processes, each of which prepares a
+    reference once). With workers, ``peak_memory_mb`` is the largest of this
+    process's and the workers'. ``failures`` are the queries that raised (not in ``runs``);
+    ``preparations`` counts the references prepared (once per reference and process).
     """
 
     dataset: EvaluationSet
@@ -102,12 +108,79 @@ class HierarchyRun:
     prepare_seconds: dict[str, float]
     peak_memory_mb: float
     step_names: tuple[str, ...]
+    failures: tuple[QueryFailure, ...] = ()
+    preparations: int = 0
 
 
 def peak_memory_mb() -> float:
     """The process's peak resident set size so far (MiB)."""
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return float(rss) / (1024.0 * 1024.0) if sys.platform == "darwin" else float(rss) / 1024.0
+
+
+@dataclass(frozen=True)
+class QueryFailure:
+    """A query the hierarchy could not run: its position in the set, its id and the error
+    (``"<ExceptionType>: <message>"``); ``worker_died`` when the worker running it was lost."""
+
+    index: int
+    query_id: str
+    error: str
+    worker_died: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class _Localized:
+    """What a worker sends back for one query (the driver adds the case it already holds)."""
+
+    localization: Localization
+    seconds: float
+    prepare_seconds: dict[str, float] | None = None  # when its Localizer was prepared for it
+    peak_memory_mb: float = math.nan  # the worker's peak RSS
+
+
+@dataclass(frozen=True, eq=False)
+class _Batch:
+    """What every chunk of a :func:`run_hierarchy` needs; sent once to each worker.
+
+    ``localizers`` is filled by the process that runs the chunks (its own copy on each worker): each process
+    prepares each reference once.
+    """
+
+    references: Mapping[str, Reference]
+    config: Config
+    steps: Sequence[Step] | None
+    seeded: bool
+    localizers: dict[str, Localizer] = field(default_factory=dict)
+
+    def localizer(self, reference_id: str) -> tuple[Localizer, bool]:
+        """The process's :class:`Localizer` of ``reference_id`` and whether it was prepared just now."""
+        loc = self.localizers.get(reference_id)
+        if loc is not None:
+            return loc, False
+        loc = self.localizers[reference_id] = Localizer(self.references[reference_id], self.config, steps=self.steps)
+        return loc, True
+
+
+def _localize_chunk(chunk: Sequence[Case], batch: _Batch) -> list[_Localized | TaskFailure]:
+    """Localize the queries of one chunk (one reference, prepared once per process); each query is timed on its
+    own; a query that raises gives a :class:`TaskFailure` and the others go on."""
+    localizer, fresh = batch.localizer(chunk[0].reference_id)
+    out: list[_Localized | TaskFailure] = []
+    for case in chunk:
+        t0 = time.perf_counter()
+        try:
+            loc = localizer.localize(case.query, seeded=batch.seeded)
+        except Exception as exc:  # counted and reported by id; the batch goes on
+            log.warning("query %r failed: %s: %s", case.query.id, type(exc).__name__, exc)
+            out.append(failure_of(exc))
+            continue
+        dt = time.perf_counter() - t0
+        # a fresh preparation and the worker's peak memory ride on the chunk's first successful query
+        extra = (dict(localizer.prepare_seconds) if fresh else None, peak_memory_mb())
+        fresh = False
+        out.append(_Localized(loc, dt, *extra))
+    return out
 
 
 def run_hierarchy(
@@ -117,6 +190,9 @@ def run_hierarchy(
     seeded: bool = True,
     steps: Sequence[Step] | None = None,
     progress: Progress | None = None,
+    executor: Executor | None = None,
+    chunk_size: int | None = None,
+    on_failure: Callable[[QueryFailure], None] | None = None,
 ) -> HierarchyRun:
     """Run :meth:`factorloc.Localizer.localize` on every query, keeping the step reports.
 
@@ -129,38 +205,64 @@ def run_hierarchy(
     seeded
         False runs every step blind (no hypotheses from its predecessors).
     steps
-        Override the steps (default: the configured hierarchy).
+        Override the steps (default: the configured hierarchy; sent to the workers: picklable).
     progress
-        Called as ``progress(done, total)`` after each query.
+        Called as ``progress(done, total)`` as queries finish.
+    executor
+        Where the queries run (:mod:`factorloc.parallel`; default in this process). The queries are split in
+        chunks of one reference each; each process prepares a reference once (:class:`~factorloc.Localizer`),
+        each query is timed by the worker that ran it. The results do not depend on the executor.
+    chunk_size
+        Queries per chunk (default: the executor's choice; in process, one).
+    on_failure
+        Called with each :class:`QueryFailure` as it is known (a query that raised, a worker that died).
+
+    Returns
+    -------
+    HierarchyRun
+        The runs of the queries that ran, in input order; ``failures`` the others.
     """
     data = evaluation_set(scenario)
     cfg = config or Config()
     if not isinstance(cfg, Config):
         raise InputError(f"config must be a factorloc.Config or None, got {type(cfg).__name__}")
-    localizers: dict[str, Localizer] = {}
+    step_names = tuple(s.name for s in (default_steps(cfg) if steps is None else steps))
+    ex = executor if executor is not None else SerialExecutor()
+    references = {case.reference_id: data.reference_of(case) for case in data.cases}
+    batch = _Batch(references, cfg, None if steps is None else tuple(steps), bool(seeded))
+    cb = None if progress is None else (lambda done, total, failed: progress(done, total))
     prepare_seconds: dict[str, float] = {}
-    runs = []
-    total = len(data.cases)
-    for i, case in enumerate(data.cases):
-        localizer = localizers.get(case.reference_id)
-        if localizer is None:  # reference-only work, once per reference used
-            localizer = localizers[case.reference_id] = Localizer(data.reference_of(case), cfg, steps=steps)
-            for name, sec in localizer.prepare_seconds.items():
+    preparations = 0
+    runs: list[QueryRun] = []
+    failures: list[QueryFailure] = []
+    peak = peak_memory_mb()
+    group = [case.reference_id for case in data.cases]
+    results = ex.map_chunks(_localize_chunk, data.cases, chunk_size, group=group, shared=batch, progress=cb)
+    for i, result in enumerate(results):
+        case = data.cases[i]
+        if isinstance(result, TaskFailure):
+            failure = QueryFailure(i, case.query.id, result.error, result.worker_died)
+            failures.append(failure)
+            if on_failure is not None:
+                on_failure(failure)
+            continue
+        if result.prepare_seconds is not None:  # reference-only work, once per reference and process
+            preparations += 1
+            for name, sec in result.prepare_seconds.items():
                 prepare_seconds[name] = prepare_seconds.get(name, 0.0) + sec
-        t0 = time.perf_counter()
-        loc = localizer.localize(case.query, seeded=seeded)
-        dt = time.perf_counter() - t0
-        runs.append(QueryRun(i, case, loc.steps, loc, dt))
-        if progress is not None:
-            progress(i + 1, total)
+        if math.isfinite(result.peak_memory_mb):
+            peak = max(peak, result.peak_memory_mb)
+        runs.append(QueryRun(i, case, result.localization.steps, result.localization, result.seconds))
     return HierarchyRun(
         data,
         cfg,
         bool(seeded),
         tuple(runs),
         prepare_seconds,
-        peak_memory_mb(),
-        tuple(s.name for s in next(iter(localizers.values())).steps),
+        max(peak, peak_memory_mb()),
+        step_names,
+        tuple(failures),
+        preparations,
     )
 
 
@@ -266,7 +368,7 @@ def _view_overlaps(run: HierarchyRun) -> list[float]:
 def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryResult]:
     out = []
     overlaps = _view_overlaps(run)
-    for qr in run.runs:
+    for qr, overlap in zip(run.runs, overlaps, strict=True):
         t0 = time.perf_counter()
         gating = run.config.gating
         loc = fuse_gated(gate([StepRun.of_report(r) for r in qr.reports], gating), strategy, gating=gating)
@@ -283,7 +385,7 @@ def _fuse_per_query(run: HierarchyRun, strategy: FusionStrategy) -> list[QueryRe
                 qr.steps_seconds + dt,
                 dt,
                 _distance(qr.case, run.dataset.reference_of(qr.case)),
-                overlaps[qr.index],
+                overlap,
             )
         )
     return out
@@ -293,7 +395,7 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
     out = []
     overlaps = _view_overlaps(run)
     strategy.reset()
-    for qr in run.runs:
+    for qr, overlap in zip(run.runs, overlaps, strict=True):
         t0 = time.perf_counter()
         fused = strategy.update(qr.case.query, qr.reports)
         dt = time.perf_counter() - t0
@@ -313,7 +415,7 @@ def _fuse_sequential(run: HierarchyRun, strategy: SequentialStrategy) -> list[Qu
                 qr.steps_seconds + dt,
                 dt,
                 _distance(qr.case, run.dataset.reference_of(qr.case)),
-                overlaps[qr.index],
+                overlap,
             )
         )
     return out
@@ -327,6 +429,9 @@ def evaluate(
     seeded: bool = True,
     steps: Sequence[Step] | None = None,
     progress: Progress | None = None,
+    executor: Executor | None = None,
+    chunk_size: int | None = None,
+    on_failure: Callable[[QueryFailure], None] | None = None,
 ) -> EvaluationReport:
     """Localize every query of ``scenario`` and score accuracy, honesty, availability and speed.
 
@@ -349,6 +454,13 @@ def evaluate(
         As in :func:`run_hierarchy`.
     progress
         As in :func:`run_hierarchy`.
+    executor
+        As in :func:`run_hierarchy`: where the hierarchy runs (the fusion and the scoring run here). The
+        report's summary counts the failed queries (``failed_queries``) and scores the others.
+    chunk_size
+        As in :func:`run_hierarchy`.
+    on_failure
+        As in :func:`run_hierarchy`.
 
     Returns
     -------
@@ -364,7 +476,16 @@ def evaluate(
         if steps is not None:
             raise InputError("evaluate(run, steps=...): steps cannot change once the HierarchyRun is made")
     else:
-        run = run_hierarchy(scenario, config, seeded=seeded, steps=steps, progress=progress)
+        run = run_hierarchy(
+            scenario,
+            config,
+            seeded=seeded,
+            steps=steps,
+            progress=progress,
+            executor=executor,
+            chunk_size=chunk_size,
+            on_failure=on_failure,
+        )
     if strategy is None:
         from factorloc.pipeline import strategy_for
 

@@ -1,0 +1,242 @@
+"""The executor on ``dask.distributed``: a local cluster of worker processes, or an existing scheduler.
+
+``DaskExecutor(workers=N)`` starts ``LocalCluster(n_workers=N, threads_per_worker=1, processes=True)``;
+``DaskExecutor(scheduler=ADDRESS)`` (or the environment variable ``DASK_SCHEDULER_ADDRESS``) connects to a
+running cluster. Dask is imported when the executor starts, never at ``import factorloc``; without the extra
+(``pip install factorloc[dask]``) starting raises a :class:`~factorloc.errors.ConfigError` saying so.
+
+One chunk is one Dask task (``client.submit(..., pure=False)``: no hashing of the inputs) whose items are
+scattered to a worker first; the ``shared`` object is scattered to every worker once
+(``client.scatter(broadcast=True)``). Results are
+released in input order as the chunks finish. A chunk whose function raised, or whose worker died more often
+than the scheduler allows (``distributed.scheduler.allowed-failures``), yields a
+:class:`~factorloc.parallel.base.TaskFailure` per item; the other chunks go on. An interrupt (``Ctrl-C``)
+or any exception in the consumer cancels the chunks still pending; :meth:`DaskExecutor.close` (or leaving the
+``with`` block) closes the client and the local cluster.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Hashable, Iterator, Sequence
+from typing import Any
+
+from factorloc.errors import ConfigError, InputError
+from factorloc.parallel.base import (
+    ChunkFunction,
+    InputOrder,
+    ItemsProgress,
+    SerialExecutor,
+    TaskFailure,
+    check_results,
+    chunk_indices,
+    default_chunk_size,
+    failure_of,
+)
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SCHEDULER_ENV", "DaskExecutor", "executor_from_options"]
+
+#: The environment variable naming a running scheduler (Dask's own convention).
+SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+
+
+def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence[Any]:
+    """The task a worker runs: ``fn(chunk, shared)``, checked to give one result per item."""
+    return list(check_results(fn(chunk, shared), chunk))
+
+
+def _warm_up_worker() -> float:
+    """Load the compiled kernels in a worker (:func:`factorloc.jit.warm_up`): its first query is then timed
+    without numba's cache load, as in a warm process."""
+    from factorloc import jit
+
+    return jit.warm_up()
+
+
+def _import_distributed() -> Any:
+    try:
+        import distributed
+    except ImportError as exc:  # pragma: no cover - the dev environment has the extra
+        raise ConfigError(
+            "DaskExecutor needs dask.distributed: pip install 'factorloc[dask]' (or run without --workers/--scheduler)"
+        ) from exc
+    return distributed
+
+
+class DaskExecutor:
+    """Runs chunks as tasks on a Dask cluster.
+
+    Parameters
+    ----------
+    workers
+        Start a local cluster of this many single-threaded worker processes.
+    scheduler
+        Connect to the scheduler at this address (``tcp://host:8786``); default: ``$DASK_SCHEDULER_ADDRESS``
+        when ``workers`` is None.
+    chunks_per_worker
+        With ``chunk_size=None``, items are split into about ``workers × chunks_per_worker`` chunks.
+    allowed_failures
+        For a local cluster: how many times a task whose worker died is retried before it is reported failed
+        (Dask's ``distributed.scheduler.allowed-failures``; its default is 3).
+    warm_up
+        Load the compiled kernels in every worker when the executor starts (:func:`factorloc.jit.warm_up`,
+        about a second each once numba's cache exists), so that no query's time includes it.
+
+    Notes
+    -----
+    Use it as a context manager (``with DaskExecutor(workers=2) as ex: evaluate(..., executor=ex)``) or call
+    :meth:`close`; the cluster starts at the first :meth:`map_chunks` (or :meth:`start`).
+    """
+
+    def __init__(
+        self,
+        workers: int | None = None,
+        scheduler: str | None = None,
+        *,
+        chunks_per_worker: int = 4,
+        allowed_failures: int | None = None,
+        warm_up: bool = True,
+    ) -> None:
+        if workers is not None and scheduler is not None:
+            raise InputError("DaskExecutor takes workers (a local cluster) or scheduler (an existing one), not both")
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+            raise InputError(f"workers must be an integer >= 1, got {workers!r}")
+        if workers is None and scheduler is None:
+            scheduler = os.environ.get(SCHEDULER_ENV) or None
+            if scheduler is None:
+                raise InputError(f"DaskExecutor needs workers=N or scheduler=ADDRESS (or ${SCHEDULER_ENV})")
+        if chunks_per_worker < 1:
+            raise InputError(f"chunks_per_worker must be >= 1, got {chunks_per_worker!r}")
+        self.n_workers = workers
+        self.scheduler = scheduler
+        self.chunks_per_worker = int(chunks_per_worker)
+        self.allowed_failures = allowed_failures
+        self.warm_up = bool(warm_up)
+        self._cluster: Any = None
+        self._client: Any = None
+
+    # --- life cycle ---------------------------------------------------------
+    def start(self) -> DaskExecutor:
+        """Start the local cluster (or connect to the scheduler) and the client; idempotent."""
+        if self._client is not None:
+            return self
+        distributed = _import_distributed()
+        try:
+            if self.scheduler is not None:
+                self._client = distributed.Client(self.scheduler)
+            else:
+                import dask
+
+                overrides = (
+                    {} if self.allowed_failures is None else {"distributed.scheduler.allowed-failures": self.allowed_failures}
+                )
+                with dask.config.set(overrides):
+                    self._cluster = distributed.LocalCluster(
+                        n_workers=self.n_workers,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=":0",  # a free port: the machine may run other clusters
+                        silence_logs=logging.ERROR,  # not its shutdown chatter; failures are reported here
+                    )
+                self._client = distributed.Client(self._cluster)
+            if self.warm_up:
+                self._client.run(_warm_up_worker)
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def close(self) -> None:
+        """Close the client and the local cluster (never the cluster of ``scheduler=``)."""
+        client, cluster = self._client, self._cluster
+        self._client = self._cluster = None
+        try:
+            if client is not None:
+                client.close()
+        finally:
+            if cluster is not None:
+                cluster.close()
+
+    def __enter__(self) -> DaskExecutor:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def client(self) -> Any:
+        """The ``distributed.Client`` (started on first use)."""
+        return self.start()._client
+
+    @property
+    def workers(self) -> int:
+        """The workers the scheduler knows now (a local cluster's ``n_workers`` before it starts)."""
+        if self._client is None:
+            return int(self.n_workers or 1)
+        return max(1, len(self._client.scheduler_info().get("workers", {})))
+
+    # --- work ---------------------------------------------------------------
+    def map_chunks(
+        self,
+        fn: ChunkFunction,
+        items: Sequence[Any],
+        chunk_size: int | None = None,
+        *,
+        group: Sequence[Hashable] | None = None,
+        shared: Any = None,
+        progress: ItemsProgress | None = None,
+    ) -> Iterator[Any]:
+        distributed = _import_distributed()
+        client = self.client
+        n = len(items)
+        size = chunk_size or default_chunk_size(n, self.workers, self.chunks_per_worker)
+        chunks = chunk_indices(n, size, group)
+        # ``shared`` goes to every worker once; each task names it, the worker hands its own copy to the function
+        shared_future = client.scatter(shared, broadcast=True, hash=False) if chunks else None
+        # each chunk's items go straight to a worker (not inside the task graph through the scheduler)
+        data = client.scatter([[items[i] for i in idx] for idx in chunks], hash=False) if chunks else []
+        futures = [client.submit(_run_chunk, fn, d, shared_future, pure=False) for d in data]
+        index_of = {f.key: idx for f, idx in zip(futures, chunks, strict=True)}
+        order = InputOrder(n)
+        done = failed = 0
+        try:
+            for fut in distributed.as_completed(futures):
+                idx = index_of[fut.key]
+                results = self._results_of(fut, idx, distributed)
+                done += len(idx)
+                failed += sum(isinstance(r, TaskFailure) for r in results)
+                if progress is not None:
+                    progress(done, n, failed)
+                yield from order.add(idx, results)
+        finally:  # Ctrl-C, an error in the consumer, or an abandoned generator: nothing keeps running
+            pending = [f for f in futures if not f.done()]
+            if pending:
+                client.cancel(pending)
+            for d in data:
+                d.release()
+            if shared_future is not None:
+                shared_future.release()
+
+    @staticmethod
+    def _results_of(fut: Any, idx: Sequence[int], distributed: Any) -> Sequence[Any]:
+        try:
+            return fut.result()
+        except distributed.KilledWorker as exc:
+            log.warning("the worker running %d items died: %s", len(idx), exc)
+            return [failure_of(exc, worker_died=True)] * len(idx)
+        except Exception as exc:  # the chunk's function raised in the worker
+            log.warning("a chunk of %d items failed: %s: %s", len(idx), type(exc).__name__, exc)
+            return [failure_of(exc)] * len(idx)
+
+
+def executor_from_options(workers: int | None = None, scheduler: str | None = None) -> SerialExecutor | DaskExecutor:
+    """The executor a command line asks for: ``--workers N`` (a local cluster), ``--scheduler ADDRESS``, else
+    ``$DASK_SCHEDULER_ADDRESS`` when set, else in process. Not started yet: use it in a ``with`` block."""
+    if workers is not None or scheduler is not None:
+        return DaskExecutor(workers=workers, scheduler=scheduler)
+    if os.environ.get(SCHEDULER_ENV):
+        return DaskExecutor()
+    return SerialExecutor()
