@@ -68,8 +68,8 @@ class Resection:
         position columns made dimensionless): large when the bearings cannot separate a turn from a shift
         (all points on one narrow far wall, or the robot on the circle through the points).
     runner_up
-        RANSAC only: the support (inlier count) of the best hypothesis that is not the same pose (further than
-        ``distinct_m`` or ``distinct_rad`` from the result); 0 when none.
+        RANSAC only: the inlier count of the best-supported *different* local optimum found (see ``rivals`` of
+        :func:`ransac`); 0 when none.
     """
 
     pose: Pose2
@@ -216,6 +216,8 @@ def refine(
     weights: np.ndarray | None = None,
     sigma_floor_rad: float = 0.0,
     iterations: int = 20,
+    jackknife: bool = False,
+    groups: np.ndarray | None = None,
 ) -> Resection | None:
     """Gauss–Newton least squares of the angular residuals from ``initial``, with the residual-variance covariance.
 
@@ -230,7 +232,17 @@ def refine(
     sigma_floor_rad
         Lower bound on the residual σ used in the covariance (0: none; exact bearings then give a zero covariance).
     iterations
-        Gauss–Newton iterations at most (stops when the step is below 1e-12).
+        Gauss–Newton iterations at most (stops after a step below 1e-10).
+    jackknife
+        Also compute the leave-one-bearing-out jackknife covariance ``(n−1)/n Σ Δ_i Δ_iᵀ`` (``Δ_i`` the
+        one-step change of the pose when bearing i is left out, ``(H − w_i J_iᵀJ_i)⁻¹ J_iᵀ w_i r_i``) and scale
+        the covariance up until it covers it in every direction (by the largest generalized eigenvalue): a few
+        bearings with high leverage (false matches that happen to fit, coarse ranges) make a confident but wrong
+        pose that the curvature does not reveal, their influence does.
+    groups
+        With ``jackknife``: integer labels (N,) of bearings that are left out together (delete-a-group jackknife,
+        ``(g−1)/g Σ Δ_g Δ_gᵀ``), e.g. points close together in the world, so that two false matches on one
+        object cannot hide each other's leverage. None: each bearing is its own group.
 
     Returns
     -------
@@ -254,7 +266,7 @@ def refine(
         if not np.all(np.isfinite(step)):
             return None
         state = state + step
-        if np.max(np.abs(step)) < 1e-12:
+        if np.max(np.abs(step)) < 1e-10:  # quadratic convergence: the state is now exact to ~1e-20
             break
     res, jac, h, g, r = _normal(pts, b, w, state)
     try:
@@ -270,8 +282,33 @@ def refine(
     dmat = np.diag([r_med, r_med, 1.0])
     ev = np.linalg.eigvalsh(dmat @ h @ dmat)
     condition = float(ev[-1] / ev[0]) if ev[0] > 0.0 else math.inf
+    cov = s * s * h_inv
+    if jackknife and n > 3:
+        labels = np.arange(n) if groups is None else np.asarray(groups)
+        if labels.shape != (n,):
+            raise InputError(f"resection groups must have one label per bearing ({n}), got shape {labels.shape}")
+        uniq, inverse = np.unique(labels, return_inverse=True)
+        g = len(uniq)
+        if g >= 2:
+            wr = jac * (w * res)[:, None]  # J_iᵀ w_i r_i per bearing
+            gj = np.zeros((g, 3))
+            np.add.at(gj, inverse, wr)
+            outer = w[:, None, None] * jac[:, :, None] * jac[:, None, :]
+            gh = np.zeros((g, 3, 3))
+            np.add.at(gh, inverse, outer)
+            try:
+                delta = np.linalg.solve(h[None] - gh, gj[:, :, None])[:, :, 0]
+            except np.linalg.LinAlgError:
+                delta = np.full((g, 3), np.inf)  # leaving a group out makes the pose undetermined
+            if np.all(np.isfinite(delta)):
+                cov_jk = (g - 1) / g * delta.T @ delta
+                chol = np.linalg.cholesky(cov)
+                m = np.linalg.solve(chol, np.linalg.solve(chol, cov_jk).T)  # L⁻¹ C_jk L⁻ᵀ
+                cov = cov * max(1.0, float(np.linalg.eigvalsh(0.5 * (m + m.T))[-1]))
+            else:
+                cov = cov * np.inf
     pose = Pose2(float(state[0]), float(state[1]), float(wrap_angle(state[2])))
-    return Resection(pose, s * s * h_inv, np.ones(n, dtype=bool), sigma_hat, condition)
+    return Resection(pose, cov, np.ones(n, dtype=bool), sigma_hat, condition)
 
 
 def ransac(
@@ -283,8 +320,7 @@ def ransac(
     hypotheses: int = 256,
     min_inliers: int = 3,
     sigma_floor_rad: float = 0.0,
-    distinct_m: float = 0.3,
-    distinct_rad: float = math.radians(3.0),
+    rivals: int = 6,
     seed: int = 0,
 ) -> Resection | None:
     """Robust resection: minimal 3-bearing hypotheses (MSAC), the best one refined on its inliers.
@@ -303,9 +339,11 @@ def ransac(
         Fewest inliers for a result.
     sigma_floor_rad
         See :func:`refine`.
-    distinct_m, distinct_rad
-        A hypothesis further than this (position or heading) from the result is a *different* pose; the
-        best-supported one gives :attr:`Resection.runner_up`.
+    rivals
+        How many of the next-best hypotheses are refined (each on its own inliers) to look for a *different*
+        local optimum: one further than a squared Mahalanobis distance of 11.83 (3 dof ≈ 3σ... under the result's
+        covariance) gives :attr:`Resection.runner_up` its inlier count (two poses that both explain the
+        bearings: a narrow view of far points, look-alike textures).
     seed
         Seed of the sampler.
 
@@ -330,7 +368,6 @@ def ransac(
     d = pts[None, :, :] - cand[:, None, :2]
     res = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - cand[:, 2:3] - b[None, :]))
     cost = np.minimum(res**2, threshold_rad**2).sum(axis=1)  # MSAC
-    support = (np.abs(res) <= threshold_rad).sum(axis=1)
     best = int(np.argmin(cost))
     inl = np.abs(res[best]) <= threshold_rad
     result = None
@@ -349,11 +386,51 @@ def ransac(
         inl = again
     assert result is not None
     p = result.pose
-    far = (np.hypot(cand[:, 0] - p.x, cand[:, 1] - p.y) > distinct_m) | (
-        np.abs(np.asarray(wrap_angle(cand[:, 2] - p.theta))) > distinct_rad
-    )
-    runner_up = int(support[far].max()) if np.any(far) else 0
+    runner_up = _rival_support(pts, b, weights, cand, cost, result, threshold_rad, sigma_floor_rad, rivals, min_inliers)
     return Resection(p, result.covariance, inl, result.residual_sigma_rad, result.condition, runner_up)
+
+
+def _rival_support(
+    pts: np.ndarray,
+    b: np.ndarray,
+    weights: np.ndarray | None,
+    cand: np.ndarray,
+    cost: np.ndarray,
+    result: Resection,
+    threshold_rad: float,
+    sigma_floor_rad: float,
+    rivals: int,
+    min_inliers: int,
+) -> int:
+    """Inlier count of the best different local optimum among the next-best hypotheses (refined), else 0."""
+    p = result.pose
+    try:
+        info = np.linalg.inv(result.covariance)
+    except np.linalg.LinAlgError:
+        return 0
+
+    def d2(x: float, y: float, th: float) -> float:
+        e = np.array([x - p.x, y - p.y, float(wrap_angle(th - p.theta))])
+        return float(e @ info @ e)
+
+    e = cand - np.array([p.x, p.y, p.theta])
+    e[:, 2] = np.asarray(wrap_angle(e[:, 2]))
+    far = np.einsum("ki,ij,kj->k", e, info, e) > 11.83
+    order = np.argsort(cost)
+    best = 0
+    for k in order[far[order]][:rivals]:
+        c = cand[k]
+        d = pts - c[:2]
+        inl = np.abs(np.asarray(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - c[2] - b))) <= threshold_rad
+        if int(inl.sum()) < max(3, min_inliers):
+            continue
+        w = None if weights is None else np.asarray(weights, dtype=np.float64)[inl]
+        fit = refine(pts[inl], b[inl], Pose2(*c), weights=w, sigma_floor_rad=sigma_floor_rad, iterations=8)
+        if fit is None or d2(fit.pose.x, fit.pose.y, fit.pose.theta) <= 11.83:
+            continue  # converged back to the result: the same optimum
+        n = int((np.abs(bearing_residuals(pts, b, fit.pose)) <= threshold_rad).sum())
+        best = max(best, n)
+    return best
 
 
 def heading_given_position(

@@ -95,7 +95,7 @@ def test_a_mirror_pose_is_reported_as_runner_up_support() -> None:
     a, b_pose = Pose2(0.0, 0.0, 0.0), Pose2(1.0, 0.5, 0.3)
     pa, ba = _scene(rng, 30, a)
     pb, bb = _scene(rng, 18, b_pose)
-    fit = rs.ransac(np.vstack([pa, pb]), np.concatenate([ba, bb]), math.radians(0.3), hypotheses=512)
+    fit = rs.ransac(np.vstack([pa, pb]), np.concatenate([ba, bb]), math.radians(0.3), hypotheses=512, sigma_floor_rad=1e-4)
     assert np.max(np.abs(_err(fit.pose, a))) < 1e-9
     assert 17 <= fit.runner_up <= 20
 
