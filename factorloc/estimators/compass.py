@@ -197,15 +197,12 @@ class CompassConfig:
     pose_residual_floor_px
         The residual σ used in the resected covariance is at least this many query pixels (sub-pixel keypoints;
         guards against a lucky small scatter of few bearings).
-    pose_split_d2
-        Unreliable when the poses resected from the two interleaved halves of the inliers (sorted by azimuth:
-        even and odd) differ by more than this squared Mahalanobis distance (3 dof, the halves' summed
-        covariances; 14.16 ≈ 3σ): a pose that rests on a few high-leverage bearings (a false match that fits,
-        a wrong range) is not reproduced by the half without them.
     pose_group_m
-        The resected covariance covers the delete-a-group jackknife, the groups being the points in one cell of
-        a grid of this size (m): two false matches on one object cannot hide each other's leverage (a narrow
-        view of one far wall plus two such points made a confident pose 29 cm off, on the simulated apartment).
+        Bearings to points in one cell of a world grid of this size (m) form a *group*. The resected covariance
+        covers the delete-a-group jackknife, and no direction of it is trusted beyond what the groups other than
+        the dominant one verify (``σ² ((H − H_g*)⁻¹ − H⁻¹)`` is added, see :func:`_group_leverage`): two false
+        matches on a near object pinned the weak direction of a narrow view of one far wall, a confident pose
+        29 cm off, on the simulated apartment.
     pose_seed_consistency_d2
         Unreliable when the resected position is further than this squared Mahalanobis distance (2 dof,
         combined covariances; 11.83 ≈ 3σ) from a position hypothesis.
@@ -259,7 +256,6 @@ class CompassConfig:
     max_pose_ambiguity: float = 0.5
     pose_sigma_floor_m: float = 0.01
     pose_residual_floor_px: float = 0.25
-    pose_split_d2: float = 14.16
     pose_group_m: float = 0.3
     pose_seed_consistency_d2: float = 11.83
 
@@ -714,6 +710,11 @@ def _pose_from_bearings(
         checks.append(Check.flag("compass.pose.solvable", "resection solvable", False, failure="singular resection"))
     else:
         cov = np.array(final.covariance)
+        leverage, extra = _group_leverage(pts[inl], final.pose, weights[inl], groups[inl])
+        s_res = max(final.residual_sigma_rad, config.pose_residual_floor_px * pixel_rad)
+        cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
+        if not np.all(np.isfinite(cov)):
+            cov = np.diag([1e6, 1e6, math.pi**2])  # rests on one group alone: fails the σ checks below
         cov[:2, :2] += np.eye(2) * config.pose_sigma_floor_m**2
         cov[2, 2] += config.sigma_floor_rad**2
         sigma_pos = float(math.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]))
@@ -740,14 +741,7 @@ def _pose_from_bearings(
                 "compass.pose.ambiguity", "rival pose support", fit.runner_up / n_in, config.max_pose_ambiguity, Unit.FRACTION
             ),
         ]
-        split = _split_consistency(
-            pts[inl], az_query_rad[inl], weights[inl], final.pose, config.pose_residual_floor_px * pixel_rad
-        )
-        diag["pose_split_d2"] = split
-        if split is not None:
-            checks.append(
-                Check.at_most("compass.pose.split", "d² between the two halves' poses", split, config.pose_split_d2, Unit.SQUARED)
-            )
+        diag["pose_group_leverage"] = leverage
         p = hypotheses.position()
         if p is not None:
             delta = np.array([final.pose.x - p[0], final.pose.y - p[1]])
@@ -801,34 +795,42 @@ def _pose_from_bearings(
     return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
 
 
+def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, groups: np.ndarray) -> tuple[float, np.ndarray]:
+    """The dominant group of bearings: its share of the pose's information, and what the covariance lacks without it.
+
+    With ``H = Σ_g H_g`` the weighted normal matrix of the bearings at ``pose`` (unit σ), the group ``g*`` of the
+    largest ``λ_max(H^-½ H_g H^-½)`` (its share of the information in some direction, in [0, 1]) is returned with
+    ``(H − H_g*)⁻¹ − H⁻¹`` (PSD; infinite when the rest is singular): added (× σ²) to the covariance, the pose
+    is as uncertain in every direction as the other groups alone make it — a direction that rests on one group
+    is not trusted beyond what the others verify.
+    """
+    d = points_xy_m - np.array([pose.x, pose.y])
+    r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    jac = np.column_stack([d[:, 1] / r2, -d[:, 0] / r2, -np.ones(len(d))])
+    outer = weights[:, None, None] * jac[:, :, None] * jac[:, None, :]
+    uniq, inverse = np.unique(groups, return_inverse=True)
+    gh = np.zeros((len(uniq), 3, 3))
+    np.add.at(gh, inverse.ravel(), outer)
+    h = gh.sum(axis=0)
+    w, v = np.linalg.eigh(h)
+    if w[0] <= 0.0:
+        return 1.0, np.full((3, 3), np.inf)
+    s = v @ np.diag(w**-0.5) @ v.T
+    shares = np.linalg.eigvalsh(s[None] @ gh @ s[None])[:, -1]
+    g = int(np.argmax(shares))
+    rest = h - gh[g]
+    wr = np.linalg.eigvalsh(rest)
+    if wr[0] <= 1e-12 * w[-1]:
+        return float(np.clip(shares[g], 0.0, 1.0)), np.full((3, 3), np.inf)
+    extra = np.linalg.inv(rest) - np.linalg.inv(h)
+    return float(np.clip(shares[g], 0.0, 1.0)), 0.5 * (extra + extra.T)
+
+
 def _groups(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     """Integer labels of the world grid cells (``cell_m``) the points fall in."""
     cells = np.floor(points_xy_m / cell_m).astype(np.int64)
     _, labels = np.unique(cells, axis=0, return_inverse=True)
     return labels.ravel()
-
-
-def _split_consistency(
-    points_xy_m: np.ndarray, bearings_rad: np.ndarray, weights: np.ndarray, pose: Pose2, floor_rad: float
-) -> float | None:
-    """Squared Mahalanobis distance between the poses of the two interleaved halves of the bearings (or None)."""
-    from factorloc.vision import resection as rs
-
-    order = np.argsort(bearings_rad)
-    halves = []
-    for idx in (order[0::2], order[1::2]):
-        fit = rs.refine(
-            points_xy_m[idx], bearings_rad[idx], pose, weights=weights[idx], sigma_floor_rad=floor_rad, jackknife=True
-        )
-        if fit is None:
-            return None
-        halves.append(fit)
-    a, b = halves
-    delta = np.array([a.pose.x - b.pose.x, a.pose.y - b.pose.y, float(wrap_angle(a.pose.theta - b.pose.theta))])
-    try:
-        return float(delta @ np.linalg.solve(a.covariance + b.covariance, delta))
-    except np.linalg.LinAlgError:
-        return None
 
 
 def _position_sensitivity(

@@ -321,6 +321,8 @@ def ransac(
     min_inliers: int = 3,
     sigma_floor_rad: float = 0.0,
     rivals: int = 6,
+    distinct_m: float = 0.05,
+    distinct_rad: float = math.radians(0.5),
     seed: int = 0,
 ) -> Resection | None:
     """Robust resection: minimal 3-bearing hypotheses (MSAC), the best one refined on its inliers.
@@ -344,6 +346,9 @@ def ransac(
         local optimum: one further than a squared Mahalanobis distance of 11.83 (3 dof ≈ 3σ... under the result's
         covariance) gives :attr:`Resection.runner_up` its inlier count (two poses that both explain the
         bearings: a narrow view of far points, look-alike textures).
+    distinct_m, distinct_rad
+        ... and further than ``distinct_m`` in position or ``distinct_rad`` in heading (a rival refined on a slightly
+        different inlier set lands a hair from a very precise result: the same optimum).
     seed
         Seed of the sampler.
 
@@ -386,7 +391,9 @@ def ransac(
         inl = again
     assert result is not None
     p = result.pose
-    runner_up = _rival_support(pts, b, weights, cand, cost, result, threshold_rad, sigma_floor_rad, rivals, min_inliers)
+    runner_up = _rival_support(
+        pts, b, weights, cand, cost, result, threshold_rad, sigma_floor_rad, rivals, min_inliers, distinct_m, distinct_rad
+    )
     return Resection(p, result.covariance, inl, result.residual_sigma_rad, result.condition, runner_up)
 
 
@@ -401,6 +408,8 @@ def _rival_support(
     sigma_floor_rad: float,
     rivals: int,
     min_inliers: int,
+    distinct_m: float,
+    distinct_rad: float,
 ) -> int:
     """Inlier count of the best different local optimum among the next-best hypotheses (refined), else 0."""
     p = result.pose
@@ -428,6 +437,11 @@ def _rival_support(
         fit = refine(pts[inl], b[inl], Pose2(*c), weights=w, sigma_floor_rad=sigma_floor_rad, iterations=8)
         if fit is None or d2(fit.pose.x, fit.pose.y, fit.pose.theta) <= 11.83:
             continue  # converged back to the result: the same optimum
+        if (
+            math.hypot(fit.pose.x - p.x, fit.pose.y - p.y) <= distinct_m
+            and abs(float(wrap_angle(fit.pose.theta - p.theta))) <= distinct_rad
+        ):
+            continue  # a hair away: the same optimum, refined on a slightly different inlier set
         n = int((np.abs(bearing_residuals(pts, b, fit.pose)) <= threshold_rad).sum())
         best = max(best, n)
     return best
