@@ -318,11 +318,12 @@ def ransac(
     *,
     weights: np.ndarray | None = None,
     hypotheses: int = 256,
+    confidence: float = 0.999,
     min_inliers: int = 3,
     sigma_floor_rad: float = 0.0,
     rivals: int = 6,
-    distinct_m: float = 0.05,
-    distinct_rad: float = math.radians(0.5),
+    distinct_m: float = 0.1,
+    distinct_rad: float = math.radians(1.0),
     seed: int = 0,
 ) -> Resection | None:
     """Robust resection: minimal 3-bearing hypotheses (MSAC), the best one refined on its inliers.
@@ -336,7 +337,11 @@ def ransac(
     weights
         Relative weights for the refinement (see :func:`refine`); the scoring ignores them.
     hypotheses
-        How many random minimal sets are drawn (fixed ``seed``: the same sets on every machine).
+        The most random minimal sets drawn (fixed ``seed``: the same sets on every machine), in batches of 64.
+    confidence
+        Drawing stops after the batch where ``N ≥ log(1 − confidence) / log(1 − ε³)`` sets were drawn, ε the
+        best hypothesis's inlier ratio so far (the standard RANSAC count; an all-inlier set drawn with that
+        probability).
     min_inliers
         Fewest inliers for a result.
     sigma_floor_rad
@@ -364,17 +369,30 @@ def ransac(
     if not threshold_rad > 0.0:
         raise InputError(f"resection threshold_rad must be > 0, got {threshold_rad!r}")
     rng = np.random.default_rng(seed)
-    keys = rng.random((hypotheses, n))
-    sets = np.argpartition(keys, 3, axis=1)[:, :3] if n > 3 else np.tile(np.arange(3), (hypotheses, 1))
-    cand = solve_minimal(pts[sets], b[sets]).reshape(-1, 3)
-    cand = cand[np.all(np.isfinite(cand), axis=1)]
-    if not len(cand):
+    cands, costs, drawn = [], [], 0
+    while drawn < hypotheses:  # batches of 64 minimal sets, until enough for `confidence` at the best inlier ratio
+        k = min(64, hypotheses - drawn)
+        keys = rng.random((k, n))
+        sets = np.argpartition(keys, 3, axis=1)[:, :3] if n > 3 else np.tile(np.arange(3), (k, 1))
+        drawn += k
+        c = solve_minimal(pts[sets], b[sets]).reshape(-1, 3)
+        c = c[np.all(np.isfinite(c), axis=1)]
+        if not len(c):
+            continue
+        d = pts[None, :, :] - c[:, None, :2]
+        r = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - c[:, 2:3] - b[None, :]))
+        cands.append(c)
+        costs.append(np.minimum(r**2, threshold_rad**2).sum(axis=1))  # MSAC
+        ratio = float((np.abs(r) <= threshold_rad).sum(axis=1).max()) / n
+        if ratio >= 1.0 or drawn >= math.log(1.0 - confidence) / math.log(1.0 - ratio**3 + 1e-300):
+            break
+    if not cands:
         return None
-    d = pts[None, :, :] - cand[:, None, :2]
-    res = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - cand[:, 2:3] - b[None, :]))
-    cost = np.minimum(res**2, threshold_rad**2).sum(axis=1)  # MSAC
+    cand, cost = np.concatenate(cands), np.concatenate(costs)
+    d = pts[None, :, :] - cand[None, np.argmin(cost), :2]
+    best_res = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - cand[np.argmin(cost), 2] - b[None, :]))[0]
     best = int(np.argmin(cost))
-    inl = np.abs(res[best]) <= threshold_rad
+    inl = np.abs(best_res) <= threshold_rad
     result = None
     for _ in range(3):  # refine on the inliers, re-select them from the refined pose, once or twice more
         if int(inl.sum()) < max(3, min_inliers):
@@ -391,9 +409,7 @@ def ransac(
         inl = again
     assert result is not None
     p = result.pose
-    runner_up = _rival_support(
-        pts, b, weights, cand, cost, result, threshold_rad, sigma_floor_rad, rivals, min_inliers, distinct_m, distinct_rad
-    )
+    runner_up = _rival_support(pts, b, weights, cand, cost, result, threshold_rad, rivals, min_inliers, distinct_m, distinct_rad)
     return Resection(p, result.covariance, inl, result.residual_sigma_rad, result.condition, runner_up)
 
 
@@ -405,7 +421,6 @@ def _rival_support(
     cost: np.ndarray,
     result: Resection,
     threshold_rad: float,
-    sigma_floor_rad: float,
     rivals: int,
     min_inliers: int,
     distinct_m: float,
@@ -426,24 +441,41 @@ def _rival_support(
     e[:, 2] = np.asarray(wrap_angle(e[:, 2]))
     far = np.einsum("ki,ij,kj->k", e, info, e) > 11.83
     order = np.argsort(cost)
+    picks = order[far[order]][:rivals]
+    if not len(picks):
+        return 0
+    w_all = np.ones(len(pts)) if weights is None else np.asarray(weights, dtype=np.float64)
+    state = np.array(cand[picks], dtype=np.float64)  # (R, 3): the rivals, refined together
+
+    def residuals(st: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        d = pts[None, :, :] - st[:, None, :2]
+        r2 = np.maximum(d[..., 0] ** 2 + d[..., 1] ** 2, 1e-12)
+        res = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - st[:, 2:3] - b[None, :]))
+        return d, r2, res
+
+    _, _, res = residuals(state)
+    mask = np.abs(res) <= threshold_rad  # each rival's own inliers
+    enough = mask.sum(axis=1) >= max(3, min_inliers)
+    wm = mask * w_all[None, :]
+    for _ in range(6):  # a few Gauss–Newton steps on its own inliers: where does each hypothesis lead?
+        d, r2, res = residuals(state)
+        jac = np.stack([d[..., 1] / r2, -d[..., 0] / r2, -np.ones_like(r2)], axis=-1)  # (R, n, 3)
+        h = np.einsum("rni,rn,rnj->rij", jac, wm, jac) + 1e-12 * np.eye(3)
+        g = np.einsum("rni,rn,rn->ri", jac, wm, res)
+        try:
+            state = state - np.linalg.solve(h, g[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            return 0
+    _, _, res = residuals(state)
+    support = (np.abs(res) <= threshold_rad).sum(axis=1)
     best = 0
-    for k in order[far[order]][:rivals]:
-        c = cand[k]
-        d = pts - c[:2]
-        inl = np.abs(np.asarray(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - c[2] - b))) <= threshold_rad
-        if int(inl.sum()) < max(3, min_inliers):
-            continue
-        w = None if weights is None else np.asarray(weights, dtype=np.float64)[inl]
-        fit = refine(pts[inl], b[inl], Pose2(*c), weights=w, sigma_floor_rad=sigma_floor_rad, iterations=8)
-        if fit is None or d2(fit.pose.x, fit.pose.y, fit.pose.theta) <= 11.83:
+    for k in np.flatnonzero(enough & np.all(np.isfinite(state), axis=1)):
+        x, y, th = state[k]
+        if d2(x, y, th) <= 11.83:
             continue  # converged back to the result: the same optimum
-        if (
-            math.hypot(fit.pose.x - p.x, fit.pose.y - p.y) <= distinct_m
-            and abs(float(wrap_angle(fit.pose.theta - p.theta))) <= distinct_rad
-        ):
+        if math.hypot(x - p.x, y - p.y) <= distinct_m and abs(float(wrap_angle(th - p.theta))) <= distinct_rad:
             continue  # a hair away: the same optimum, refined on a slightly different inlier set
-        n = int((np.abs(bearing_residuals(pts, b, fit.pose)) <= threshold_rad).sum())
-        best = max(best, n)
+        best = max(best, int(support[k]))
     return best
 
 
