@@ -598,6 +598,8 @@ def bench_pose_fit(n: int, overrides: list[str]) -> None:
             bad = bad or nees[-1] > 14.16
         wrong += bad
     print(f"\n== pose fitting set: {n} views, overrides {kw or 'none'} ==")
+    if not perr:
+        perr, nees = [math.nan], [math.nan]
     print(
         f"reliable {reliable / n:.0%}, with a pose {posed / n:.0%}, confidently wrong {wrong} "
         f"({wrong / n:.1%}); position error median {100 * np.median(perr):.1f} cm, p90 {100 * np.percentile(perr, 90):.1f} cm; "

@@ -174,10 +174,13 @@ class CompassConfig:
         docstring), so that no parallax inflation remains; else the heading-only path below applies.
     pose_depth_cols, pose_depth_rows
         The depth map the resected points are read from (:func:`factorloc.vision.depth.depth_map`; rows only
-        for a cloud). Finer than the parallax correction's 32×360: on ``benchmarks/bench_vision.py --pose``'s
-        fitting seed the position error's 90th percentile fell from 7.7 to 2.4 cm at 64×1440.
+        for a cloud). Finer than the parallax correction's 32×360: on the fitting set
+        (``benchmarks/bench_vision.py --pose-fit 80``) 31 % of the views get a pose at 64×1440, 29 % at 32×360
+        (same position error, 0.8 cm median; no confidently wrong pose either way).
     pose_threshold_rad
-        RANSAC inlier threshold on a bearing's angular residual.
+        RANSAC inlier threshold on a bearing's angular residual (0.015 rad ≈ 0.86°; with ``max_pose_condition``
+        chosen on the fitting set ``benchmarks/bench_vision.py --pose-fit 80``: 35 % of the views posed vs 31 %
+        at 0.5° and 10⁴, no more confidently wrong; see ``docs/calibration/vision.md``).
     pose_hypotheses
         RANSAC's minimal (3-bearing) sets per query (a fixed sampler seed).
     min_pose_inliers
@@ -247,10 +250,10 @@ class CompassConfig:
     pose_from_bearings: bool = True
     pose_depth_cols: int = 1440
     pose_depth_rows: int = 64
-    pose_threshold_rad: float = math.radians(0.5)
+    pose_threshold_rad: float = 0.015
     pose_hypotheses: int = 256
     min_pose_inliers: int = 12
-    max_pose_condition: float = 1.0e4
+    max_pose_condition: float = 1.0e5
     max_pose_residual_rad: float = math.radians(0.5)
     max_pose_sigma_position_m: float = 0.25
     max_pose_ambiguity: float = 0.5
@@ -712,7 +715,8 @@ def _pose_from_bearings(
         cov = np.array(final.covariance)
         leverage, extra = _group_leverage(pts[inl], final.pose, weights[inl], groups[inl])
         s_res = max(final.residual_sigma_rad, config.pose_residual_floor_px * pixel_rad)
-        cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
+        with np.errstate(invalid="ignore", over="ignore"):
+            cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
         if not np.all(np.isfinite(cov)):
             cov = np.diag([1e6, 1e6, math.pi**2])  # rests on one group alone: fails the σ checks below
         cov[:2, :2] += np.eye(2) * config.pose_sigma_floor_m**2
@@ -822,7 +826,8 @@ def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, g
     wr = np.linalg.eigvalsh(rest)
     if wr[0] <= 1e-12 * w[-1]:
         return float(np.clip(shares[g], 0.0, 1.0)), np.full((3, 3), np.inf)
-    extra = np.linalg.inv(rest) - np.linalg.inv(h)
+    with np.errstate(invalid="ignore", over="ignore"):
+        extra = np.linalg.inv(rest) - np.linalg.inv(h)
     return float(np.clip(shares[g], 0.0, 1.0)), 0.5 * (extra + extra.T)
 
 
