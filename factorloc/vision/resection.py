@@ -273,8 +273,9 @@ def refine(
         h_inv = np.linalg.inv(h)
     except np.linalg.LinAlgError:
         return None
-    if not np.all(np.isfinite(h_inv)):
-        return None
+    ev_h = np.linalg.eigvalsh(h)
+    if not np.all(np.isfinite(h_inv)) or not ev_h[0] > 1e-12 * ev_h[-1]:
+        return None  # singular in double precision: some direction of the pose is not determined
     dof = max(n - 3, 1)
     sigma_hat = float(math.sqrt(float(np.sum(w * res**2)) / dof))
     s = max(sigma_hat, sigma_floor_rad)
@@ -302,9 +303,12 @@ def refine(
                 delta = np.full((g, 3), np.inf)  # leaving a group out makes the pose undetermined
             if np.all(np.isfinite(delta)):
                 cov_jk = (g - 1) / g * delta.T @ delta
-                chol = np.linalg.cholesky(cov)
-                m = np.linalg.solve(chol, np.linalg.solve(chol, cov_jk).T)  # L⁻¹ C_jk L⁻ᵀ
-                cov = cov * max(1.0, float(np.linalg.eigvalsh(0.5 * (m + m.T))[-1]))
+                try:
+                    chol = np.linalg.cholesky(cov)
+                    m = np.linalg.solve(chol, np.linalg.solve(chol, cov_jk).T)  # L⁻¹ C_jk L⁻ᵀ
+                    cov = cov * max(1.0, float(np.linalg.eigvalsh(0.5 * (m + m.T))[-1]))
+                except np.linalg.LinAlgError:
+                    return None
             else:
                 cov = cov * np.inf
     pose = Pose2(float(state[0]), float(state[1]), float(wrap_angle(state[2])))

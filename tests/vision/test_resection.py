@@ -116,3 +116,11 @@ def test_bad_inputs_raise_typed_errors() -> None:
     with pytest.raises(InputError, match="one bearing per point"):
         rs.ransac(np.zeros((4, 2)), np.zeros(3), 0.01)
     assert rs.ransac(np.ones((2, 2)), np.zeros(2), 0.01) is None  # too few bearings: no pose
+
+
+def test_an_undetermined_pose_is_refused_not_returned() -> None:
+    """All points on one ray from the robot: the position along it is not determined — no pose, no crash."""
+    pts = np.column_stack([np.linspace(1.0, 5.0, 10), np.zeros(10)])
+    b = np.zeros(10)
+    assert rs.refine(pts, b, Pose2(0.0, 0.0, 0.0), jackknife=True) is None
+    assert rs.ransac(pts, b, 0.01) is None
