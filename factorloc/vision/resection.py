@@ -372,6 +372,8 @@ def ransac(
         return None
     if not threshold_rad > 0.0:
         raise InputError(f"resection threshold_rad must be > 0, got {threshold_rad!r}")
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"resection confidence must be in (0, 1), got {confidence!r}")
     rng = np.random.default_rng(seed)
     cands, costs, drawn = [], [], 0
     while drawn < hypotheses:  # batches of 64 minimal sets, until enough for `confidence` at the best inlier ratio
@@ -388,7 +390,8 @@ def ransac(
         cands.append(c)
         costs.append(np.minimum(r**2, threshold_rad**2).sum(axis=1))  # MSAC
         ratio = float((np.abs(r) <= threshold_rad).sum(axis=1).max()) / n
-        if ratio >= 1.0 or drawn >= math.log(1.0 - confidence) / math.log(1.0 - ratio**3 + 1e-300):
+        p_good = ratio**3  # a minimal set of inliers only
+        if p_good >= 1.0 or (p_good > 1e-12 and drawn >= math.log1p(-confidence) / math.log1p(-p_good)):
             break
     if not cands:
         return None

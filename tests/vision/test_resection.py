@@ -124,3 +124,11 @@ def test_an_undetermined_pose_is_refused_not_returned() -> None:
     b = np.zeros(10)
     assert rs.refine(pts, b, Pose2(0.0, 0.0, 0.0), jackknife=True) is None
     assert rs.ransac(pts, b, 0.01) is None
+
+
+def test_bearings_without_any_consensus_draw_every_hypothesis_and_give_no_confident_pose() -> None:
+    rng = np.random.default_rng(8)
+    pts = rng.uniform(-5.0, 5.0, (200, 2))
+    b = rng.uniform(-math.pi, math.pi, 200)
+    fit = rs.ransac(pts, b, 1e-4, min_inliers=12)  # 12 random bearings never agree within 0.006°
+    assert fit is None
