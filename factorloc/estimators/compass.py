@@ -45,7 +45,18 @@ better-supported mode more than 3σθ2 away makes θ2 unreliable; (iv) after a
 resection the inliers are chosen again with votes corrected from the
 resected position (a biased inlier set from a wrong position misleads it).
 
-Calibration (measured, not changed in session 3): over the reliable θ2 of the
+Pose from bearings (*beyond the patent*, whose compass gives θ only): with reference depth each matched
+pair is a bearing from the query robot to a known world point, and three or more give the whole pose
+(x, y, θ) by 2D resection (:mod:`factorloc.vision.resection`: RANSAC over minimal 3-bearing sets, then
+Gauss–Newton on the angular residuals, covariance from the residual variance × (JᵀWJ)⁻¹, widened by a
+delete-a-group jackknife and so that no direction rests on one group of points). When its typed checks pass
+(``compass.pose.*``: inliers, inlier ratio, condition number with a stated tolerance, residual σ, σ position
+and heading, a rival optimum, consistency with the seeds) the compass emits that pose with that covariance —
+no parallax inflation remains, at the reference's spot or away from it — and, without a position hypothesis
+to check its position against, only its heading (``pose_needs_position_seed``). Otherwise the heading-only
+path below runs (the fallback when depth or geometry is missing). Figures: ``docs/calibration/vision.md``.
+
+Calibration of the heading-only path (measured, not changed in session 3): over the reliable θ2 of the
 held-out scenarios ``factorloc simulate --world apartment --queries 300 --seed
 11`` / ``--seed 23`` (kidnapped queries left out), NEES (1 dof) 0.90 / 0.47,
 θ3's 0.69 / 0.73; on ``--seed 7`` 0.58. Each looks ~1.3× cautious, but θ2 and θ3
