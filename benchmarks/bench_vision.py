@@ -306,6 +306,307 @@ def bench_scenario(directory: Path, max_queries: int) -> None:
         )
 
 
+# --------------------------------------------------------------------------------------------------------------
+# Pose from bearings (beyond the patent): the compass with and without resection, and a plain ORB vote baseline
+# --------------------------------------------------------------------------------------------------------------
+#: A baseline vote mode is "reliable" with at least this many votes within ±BASELINE_BAND_DEG of it.
+BASELINE_MIN_VOTES = 8
+BASELINE_BAND_DEG = 1.5
+
+
+class OrbVote:
+    """The plain baseline: OpenCV ORB, Lowe's ratio test, each pair votes ``az_ref − az_query``, the densest 1.5° band.
+
+    Unseeded, no parallax model, no σ: "reliable" when ≥ 8 votes fall in the band; "wrong" when then off by > 3°.
+    Query azimuths from the pinhole model (``yaw + atan((cx − u) / f)``), reference ones from the panorama grid.
+    """
+
+    def __init__(self, reference: Reference, n_reference: int = 4000, n_query: int = 1500) -> None:
+        import cv2
+
+        from factorloc.vision.strips import Grid
+
+        self.cv2 = cv2
+        self.grid = Grid.of(reference.panorama)
+        self.theta_ref = reference.T_world_reference.theta
+        gray = cv2.cvtColor(reference.panorama.image_bgr, cv2.COLOR_BGR2GRAY)
+        kps, self.desc = cv2.ORB_create(n_reference).detectAndCompute(gray, None)
+        self.az = np.asarray(self.grid.azimuth_of_column(np.array([k.pt[0] for k in kps])), dtype=np.float64)
+        self.orb = cv2.ORB_create(n_query)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+
+    def heading(self, query: Query) -> tuple[float, bool]:
+        """(world heading, reliable) of the vote mode over the query's camera images."""
+        cv2 = self.cv2
+        votes = []
+        for cam in query.images:
+            gray = cv2.cvtColor(cam.image_bgr, cv2.COLOR_BGR2GRAY)
+            kps, desc = self.orb.detectAndCompute(gray, None)
+            if desc is None or self.desc is None:
+                continue
+            for m in self.matcher.knnMatch(desc, self.desc, k=2):
+                if len(m) == 2 and m[0].distance < 0.8 * m[1].distance:
+                    u = kps[m[0].queryIdx].pt[0]
+                    az_q = cam.yaw_in_robot_rad + math.atan((cam.principal_x_px - u) / cam.focal_px)
+                    votes.append(self.az[m[0].trainIdx] - az_q)
+        if len(votes) < BASELINE_MIN_VOTES:
+            return self.theta_ref, False
+        v = np.mod(np.asarray(votes), 2 * math.pi)
+        band = math.radians(BASELINE_BAND_DEG)
+        diff = np.abs(np.mod(v[:, None] - v[None, :] + math.pi, 2 * math.pi) - math.pi)
+        support = (diff <= band).sum(axis=1)
+        k = int(np.argmax(support))
+        near = diff[k] <= band
+        mode = v[k] + float(np.mean(np.mod(v[near] - v[k] + math.pi, 2 * math.pi) - math.pi))
+        return self.theta_ref + mode, bool(support[k] >= BASELINE_MIN_VOTES)
+
+
+@dataclass
+class PoseTally:
+    """Per-variant figures of the pose benchmark."""
+
+    ms: list = field(default_factory=list)
+    reliable: int = 0
+    n: int = 0
+    wrong: int = 0  # reliable, heading off by > 3σ (baseline: > 3°), or a pose's position off by d² > 11.83 (2 dof)
+    heading_err: list = field(default_factory=list)
+    posed: int = 0
+    pos_err_near: list = field(default_factory=list)  # the poses' position errors at ≤ 2 m from the reference
+    near_n: int = 0
+
+    def add(self, est: Estimate | None, truth, seconds: float, distance_m: float, *, baseline=None) -> None:  # noqa: ANN001
+        self.n += 1
+        self.ms.append(seconds * 1e3)
+        self.near_n += distance_m <= 2.0
+        if baseline is not None:
+            theta, ok = baseline
+            err = abs(math.remainder(theta - truth.theta, 2 * math.pi))
+            if ok:
+                self.reliable += 1
+                self.heading_err.append(err)
+                self.wrong += err > math.radians(3.0)
+            return
+        if not est.reliable:
+            return
+        self.reliable += 1
+        err = abs(math.remainder(est.value("theta") - truth.theta, 2 * math.pi))
+        self.heading_err.append(err)
+        wrong = err > 3.0 * est.sigma("theta")
+        if est.measures("x"):
+            self.posed += 1
+            e = np.array([est.value("x") - truth.x, est.value("y") - truth.y])
+            cov = np.asarray(est.covariance)[:2, :2]
+            wrong = wrong or float(e @ np.linalg.solve(cov, e)) > 11.83
+            if distance_m <= 2.0:
+                self.pos_err_near.append(float(np.hypot(*e)))
+        self.wrong += wrong
+
+    def row(self, label: str) -> str:
+        med = math.degrees(float(np.median(self.heading_err))) if self.heading_err else math.nan
+        pos = f"{100 * np.median(self.pos_err_near):.1f} ({len(self.pos_err_near)}/{self.near_n})" if self.pos_err_near else "—"
+        return (
+            f"| {label} | {self.n} | {100 * self.reliable / max(self.n, 1):.0f} % | {100 * self.wrong / max(self.n, 1):.1f} % "
+            f"| {med:.3f} | {100 * self.posed / max(self.n, 1):.0f} % | {pos} | {np.median(self.ms):.1f} |"
+        )
+
+
+POSE_HEADER = (
+    "| variant / step | queries | reliable | confidently wrong | median heading error (°) | with a pose "
+    "| position error median, cm (poses / queries at ≤ 2 m) | ms / query (median, 1 core) |\n"
+    "|---|---|---|---|---|---|---|---|"
+)
+
+
+def bench_pose(directories: list[Path], max_queries: int) -> None:
+    """The compass with pose from bearings vs heading-only, the correlation after each, and a plain ORB vote."""
+    import cv2
+
+    from factorloc.datasets import load_scenario
+    from factorloc.evaluation.runner import evaluation_set
+
+    cv2.setNumThreads(1)
+    variants = {
+        "pose from bearings (default)": compass.CompassConfig(),
+        "heading only": compass.CompassConfig(pose_from_bearings=False),
+    }
+    odo = OdometryStep()
+    for directory in directories:
+        data = evaluation_set(load_scenario(directory))
+        tallies = {
+            k: PoseTally() for k in [f"{v} / {s}" for v in variants for s in ("compass", "correlation")] + ["ORB vote baseline"]
+        }
+        prepared: dict = {}
+        for case in data.cases[:max_queries]:
+            if case.truth is None or not case.query.images:
+                continue
+            ref = data.reference_of(case)
+            dist = math.hypot(case.truth.x - ref.T_world_reference.x, case.truth.y - ref.T_world_reference.y)
+            hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
+            for name, cfg in variants.items():
+                key = (name, case.reference_id)
+                if key not in prepared:
+                    prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
+                pc, pr = prepared[key]
+                t0 = time.process_time()
+                ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
+                t1 = time.process_time()
+                er = correlation.estimate(ref, case.query, hyp.plus(ec), prepared=pr)
+                t2 = time.process_time()
+                tallies[f"{name} / compass"].add(ec, case.truth, t1 - t0, dist)
+                tallies[f"{name} / correlation"].add(er, case.truth, t2 - t1, dist)
+            if ("orb", case.reference_id) not in prepared:
+                prepared[("orb", case.reference_id)] = OrbVote(ref)
+            t0 = time.process_time()
+            base = prepared[("orb", case.reference_id)].heading(case.query)
+            tallies["ORB vote baseline"].add(None, case.truth, time.process_time() - t0, dist, baseline=base)
+        print(f"\n== {directory} ==")
+        print(POSE_HEADER)
+        for label, t in tallies.items():
+            print(t.row(label))
+
+
+def bench_same_spot(n_views: int) -> None:
+    """Views at the reference spot, the issue's protocol: odometry heading σ 10° and position σ 0.2 m (that much noise drawn).
+
+    Simulated apartment (the reference has a cloud: the pose path applies) and the two real panoramas (no depth:
+    the heading-only fallback, which must assume the 0.2 m the odometry allows).
+    """
+    import cv2
+
+    from factorloc import Pose2
+    from factorloc.sim import DepthCamera, PinholeCamera, apartment, photo, render_camera, render_cloud_360, render_panorama
+
+    cv2.setNumThreads(1)
+    s_p, s_t = 0.2, math.radians(10.0)
+    print(f"\n== same spot: {n_views} views per source, 640×480 57°, gain/gamma/noise/blur; odometry σ 0.2 m / 10° drawn ==")
+    print(POSE_HEADER)
+    rng = np.random.default_rng(5)
+
+    def photometric(img: np.ndarray) -> np.ndarray:
+        gain, gamma = rng.uniform(0.6, 1.4), rng.uniform(0.75, 1.3)
+        return photo.photometric(img, gain=gain, gamma=gamma, noise_sigma=4.0, blur_sigma_px=0.7, rng=rng)
+
+    world = apartment()
+    t_ref = Pose2(3.0, 2.2, 0.3)
+    sources = []
+    pano = render_panorama(world, t_ref, width_px=2048)
+    cloud = render_cloud_360(world, t_ref, DepthCamera(stride_px=4), np.random.default_rng(1))
+    sim_ref = Reference(panorama=pano, cloud=cloud, T_world_reference=t_ref)
+
+    def sim_view(theta: float):  # noqa: ANN202
+        cam = render_camera(
+            world, Pose2(t_ref.x, t_ref.y, theta), PinholeCamera(width_px=640, height_px=480, hfov_rad=math.radians(57.0))
+        )
+        return CameraImage(photometric(cam.image_bgr), cam.hfov_rad)
+
+    sources.append(("simulated apartment (cloud)", sim_ref, sim_view))
+    for name, (w, h) in {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}.items():
+        path = PANORAMAS / name
+        if not path.is_file():
+            continue
+        eq = photo.load_equirectangular(path)
+        ref = Reference(panorama=photo.reference_panorama(eq, w, h))
+
+        def real_view(theta: float, eq=eq):  # noqa: ANN001, ANN202
+            cam = photo.camera_view(eq, theta, 0.0, width_px=640, height_px=480, hfov_rad=math.radians(57.0))
+            return CameraImage(photometric(cam.image_bgr), cam.hfov_rad, cam.yaw_in_robot_rad)
+
+        sources.append((f"{name} (no depth)", ref, real_view))
+    for label, ref, view in sources:
+        cfg = compass.CompassConfig()
+        pc, pr = compass.prepare(ref, cfg), correlation.prepare(ref)
+        orb = OrbVote(ref)
+        tc, tr, tb = PoseTally(), PoseTally(), PoseTally()
+        p = ref.T_world_reference
+        for _ in range(n_views):
+            theta = float(rng.uniform(-math.pi, math.pi))
+            q = Query(images=(view(theta),))
+            truth = Pose2(p.x, p.y, theta)
+            odo = Pose2(p.x + rng.normal(0, s_p), p.y + rng.normal(0, s_p), theta + rng.normal(0, s_t))
+            hyp = Hypotheses((Estimate.pose("odometry", odo, s_p, s_p, s_t),))
+            t0 = time.process_time()
+            ec = compass.estimate(ref, q, hyp, cfg, prepared=pc)
+            t1 = time.process_time()
+            er = correlation.estimate(ref, q, hyp.plus(ec), prepared=pr)
+            t2 = time.process_time()
+            base = orb.heading(q)
+            t3 = time.process_time()
+            tc.add(ec, truth, t1 - t0, 0.0)
+            tr.add(er, truth, t2 - t1, 0.0)
+            tb.add(None, truth, t3 - t2, 0.0, baseline=base)
+        print(tc.row(f"{label} / compass"))
+        print(tr.row(f"{label} / correlation"))
+        print(tb.row(f"{label} / ORB vote baseline"))
+
+
+def bench_pose_fit(n: int, overrides: list[str]) -> None:
+    """The fitting set of the pose rules: ``n`` views 0–2 m from the apartment's reference, odometry σ 0.2 m / 10°.
+
+    640×480 would be the scenarios' camera; these are the tests' 320×240 views with lighting changes (gain,
+    gamma, noise, blur), rendered afresh (``numpy`` seed 7), so none of them is in a held-out scenario.
+    ``overrides`` are ``name=value`` settings of :class:`CompassConfig` (e.g. ``pose_threshold_rad=0.005``).
+    Prints the reliable rate, the share with a pose, the confidently wrong (> 3σ heading or pose NEES > 14.16),
+    the poses' position error (median, p90) and their NEES (3 dof).
+    """
+    import cv2
+
+    from factorloc import Pose2
+    from factorloc.sim import DepthCamera, PinholeCamera, apartment, photo, render_camera, render_cloud_360, render_panorama
+
+    cv2.setNumThreads(1)
+    base = compass.CompassConfig()
+    kw = {}
+    for item in overrides:
+        key, value = item.split("=", 1)
+        kw[key] = type(getattr(base, key))(float(value))
+    cfg = compass.CompassConfig(**kw)
+    world = apartment()
+    t_ref = Pose2(3.0, 2.2, 0.3)
+    pano = render_panorama(world, t_ref, width_px=2048)
+    cloud = render_cloud_360(world, t_ref, DepthCamera(stride_px=4), np.random.default_rng(1))
+    ref = Reference(panorama=pano, cloud=cloud, T_world_reference=t_ref)
+    pc = compass.prepare(ref, cfg)
+    rng = np.random.default_rng(7)
+    s_p, s_t = 0.2, math.radians(10.0)
+    reliable = posed = wrong = made = 0
+    perr, nees, ms = [], [], []
+    while made < n:
+        d, a = rng.uniform(0, 2), rng.uniform(-math.pi, math.pi)
+        x, y = t_ref.x + d * math.cos(a), t_ref.y + d * math.sin(a)
+        if not world.is_free(np.array([[x, y]]), 0.4)[0]:
+            continue
+        theta = rng.uniform(-math.pi, math.pi)
+        cam = render_camera(world, Pose2(x, y, theta), PinholeCamera(width_px=320, height_px=240))
+        gain, gamma = rng.uniform(0.6, 1.4), rng.uniform(0.75, 1.3)
+        img = photo.photometric(cam.image_bgr, gain=gain, gamma=gamma, noise_sigma=4.0, blur_sigma_px=0.7, rng=rng)
+        odo = Pose2(x + rng.normal(0, s_p), y + rng.normal(0, s_p), theta + rng.normal(0, s_t))
+        hyp = Hypotheses((Estimate.pose("odometry", odo, s_p, s_p, s_t),))
+        t0 = time.process_time()
+        e = compass.estimate(ref, Query(images=(CameraImage(img, cam.hfov_rad),)), hyp, cfg, prepared=pc)
+        ms.append(1e3 * (time.process_time() - t0))
+        made += 1
+        if not e.reliable:
+            continue
+        reliable += 1
+        err = math.remainder(e.value("theta") - theta, 2 * math.pi)
+        bad = abs(err) > 3.0 * e.sigma("theta")
+        if e.measures("x"):
+            posed += 1
+            v = np.array([e.value("x") - x, e.value("y") - y, err])
+            nees.append(float(v @ np.linalg.solve(e.covariance, v)))
+            perr.append(math.hypot(v[0], v[1]))
+            bad = bad or nees[-1] > 14.16
+        wrong += bad
+    print(f"\n== pose fitting set: {n} views, overrides {kw or 'none'} ==")
+    if not perr:
+        perr, nees = [math.nan], [math.nan]
+    print(
+        f"reliable {reliable / n:.0%}, with a pose {posed / n:.0%}, confidently wrong {wrong} "
+        f"({wrong / n:.1%}); position error median {100 * np.median(perr):.1f} cm, p90 {100 * np.percentile(perr, 90):.1f} cm; "
+        f"pose NEES mean {np.mean(nees):.2f}, median {np.median(nees):.2f}; compass ms median {np.median(ms):.1f}"
+    )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--queries", type=int, default=30, help="queries of the sample scenario (default: all 30)")
@@ -313,7 +614,20 @@ def main() -> None:
     parser.add_argument("--sim", type=int, default=0, help="also measure accuracy on N simulated queries per condition")
     parser.add_argument("--scenario", type=Path, default=None, help="also measure per-step CPU time and NEES on this scenario")
     parser.add_argument("--scenario-queries", type=int, default=300, help="queries of --scenario to run")
+    parser.add_argument("--pose", type=Path, nargs="+", default=None, help="pose-from-bearings table on these scenarios")
+    parser.add_argument("--same-spot", type=int, default=0, help="same-spot views per source (sim + real panoramas)")
+    parser.add_argument("--pose-fit", type=int, default=0, help="the pose rules' fitting set: N simulated views")
+    parser.add_argument("--set", nargs="*", default=[], help="CompassConfig overrides name=value for --pose-fit")
     args = parser.parse_args()
+    if args.pose_fit:
+        bench_pose_fit(args.pose_fit, args.set)
+        return
+    if args.pose or args.same_spot:
+        if args.pose:
+            bench_pose(args.pose, args.scenario_queries)
+        if args.same_spot:
+            bench_same_spot(args.same_spot)
+        return
     if args.scenario is not None:
         bench_scenario(args.scenario, args.scenario_queries)
     if args.sim > 0:

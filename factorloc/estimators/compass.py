@@ -45,7 +45,18 @@ better-supported mode more than 3σθ2 away makes θ2 unreliable; (iv) after a
 resection the inliers are chosen again with votes corrected from the
 resected position (a biased inlier set from a wrong position misleads it).
 
-Calibration (measured, not changed in session 3): over the reliable θ2 of the
+Pose from bearings (*beyond the patent*, whose compass gives θ only): with reference depth each matched
+pair is a bearing from the query robot to a known world point, and three or more give the whole pose
+(x, y, θ) by 2D resection (:mod:`factorloc.vision.resection`: RANSAC over minimal 3-bearing sets, then
+Gauss–Newton on the angular residuals, covariance from the residual variance × (JᵀWJ)⁻¹, widened by a
+delete-a-group jackknife and so that no direction rests on one group of points). When its typed checks pass
+(``compass.pose.*``: inliers, inlier ratio, condition number with a stated tolerance, residual σ, σ position
+and heading, a rival optimum, consistency with the seeds) the compass emits that pose with that covariance —
+no parallax inflation remains, at the reference's spot or away from it — and, without a position hypothesis
+to check its position against, only its heading (``pose_needs_position_seed``). Otherwise the heading-only
+path below runs (the fallback when depth or geometry is missing). Figures: ``docs/calibration/vision.md``.
+
+Calibration of the heading-only path (measured, not changed in session 3): over the reliable θ2 of the
 held-out scenarios ``factorloc simulate --world apartment --queries 300 --seed
 11`` / ``--seed 23`` (kidnapped queries left out), NEES (1 dof) 0.90 / 0.47,
 θ3's 0.69 / 0.73; on ``--seed 7`` 0.58. Each looks ~1.3× cautious, but θ2 and θ3
@@ -167,6 +178,53 @@ class CompassConfig:
         With a position hypothesis the pairs are also voted from a 5×5 grid of positions within ±2σ of
         it; unreliable when one of them gives a mode with ≥ this many times the inliers, more than 3σθ2
         away (the heading then depends on where, within its uncertainty, the robot is).
+    pose_from_bearings
+        *Beyond the patent* (its compass gives θ only): with reference depth, resect the robot's whole pose
+        (x, y, θ) from the matched pairs' bearings (:func:`factorloc.vision.resection.ransac`; no position
+        prior) and emit it with the residual-variance covariance when its checks pass (see the module
+        docstring), so that no parallax inflation remains; else the heading-only path below applies.
+    pose_depth_cols, pose_depth_rows
+        The depth map the resected points are read from (:func:`factorloc.vision.depth.depth_map`; rows only
+        for a cloud). Finer than the parallax correction's 32×360: on the fitting set
+        (``benchmarks/bench_vision.py --pose-fit 80``) 31 % of the views get a pose at 64×1440, 29 % at 32×360
+        (same position error, 0.8 cm median; no confidently wrong pose either way).
+    pose_threshold_rad
+        RANSAC inlier threshold on a bearing's angular residual (0.015 rad ≈ 0.86°; with ``max_pose_condition``
+        chosen on the fitting set ``benchmarks/bench_vision.py --pose-fit 80``: 35 % of the views posed vs 31 %
+        at 0.5° and 10⁴, no more confidently wrong; see ``docs/calibration/vision.md``).
+    pose_hypotheses
+        RANSAC's minimal (3-bearing) sets per query (a fixed sampler seed).
+    min_pose_inliers
+        Fewest resection inliers for a reliable pose.
+    max_pose_condition
+        Unreliable when the resection's dimensionless normal matrix (position scaled by the median range) has a
+        larger condition number (a turn and a shift not separated; :attr:`factorloc.vision.resection.Resection.condition`).
+    max_pose_residual_rad
+        Unreliable when the inliers' residual σ is larger (a wrong depth map or a wrong pose).
+    max_pose_sigma_position_m
+        Unreliable when the position's largest σ is larger.
+    max_pose_ambiguity
+        Unreliable when a rival pose explains ≥ this fraction of the inliers' count in *other* matches
+        (:attr:`factorloc.vision.resection.Resection.runner_up`).
+    pose_sigma_floor_m
+        Position σ floor (m) added in quadrature to the resected covariance.
+    pose_residual_floor_px
+        The residual σ used in the resected covariance is at least this many query pixels (sub-pixel keypoints;
+        guards against a lucky small scatter of few bearings).
+    pose_group_m
+        Bearings to points in one cell of a world grid of this size (m) form a *group*. The resected covariance
+        covers the delete-a-group jackknife, and no direction of it is trusted beyond what the groups other than
+        the dominant one verify (``σ² ((H − H_g*)⁻¹ − H⁻¹)`` is added, see :func:`_group_leverage`): two false
+        matches on a near object pinned the weak direction of a narrow view of one far wall, a confident pose
+        29 cm off, on the simulated apartment.
+    pose_seed_consistency_d2
+        Unreliable when the resected position is further than this squared Mahalanobis distance (2 dof,
+        combined covariances; 11.83 ≈ 3σ) from a position hypothesis.
+    pose_needs_position_seed
+        Without a position hypothesis (no reliable odometry) emit only the resected pose's heading (its marginal
+        σ): nothing then checks the position against a look-alike. Found on the held-out scenarios (seeds 11
+        and 23, one query each): a texture repeated about 2 m away fitted 32–41 bearings with the heading right
+        (0.02°, 0.7°) and the position 2.0 m off at σ 3–9 cm; both queries had no reliable odometry.
     record_pairs
         Put every matched pair ``[az_ref, el_ref, az_query]`` (rad; reference and query robot
         frames, before parallax correction) in ``diagnostics["pairs_rad"]`` (for evaluation).
@@ -205,6 +263,21 @@ class CompassConfig:
     position_shift_support: float = 1.1
     resection: bool = True
     depth_relative_sigma: float = 0.1
+    pose_from_bearings: bool = True
+    pose_depth_cols: int = 1440
+    pose_depth_rows: int = 64
+    pose_threshold_rad: float = 0.015
+    pose_hypotheses: int = 256
+    min_pose_inliers: int = 12
+    max_pose_condition: float = 1.0e5
+    max_pose_residual_rad: float = math.radians(0.5)
+    max_pose_sigma_position_m: float = 0.25
+    max_pose_ambiguity: float = 0.5
+    pose_sigma_floor_m: float = 0.01
+    pose_residual_floor_px: float = 0.25
+    pose_group_m: float = 0.3
+    pose_seed_consistency_d2: float = 11.83
+    pose_needs_position_seed: bool = True
 
     def __post_init__(self) -> None:
         if self.detector not in kp.DETECTORS:
@@ -252,6 +325,7 @@ class PreparedCompass:
     config: CompassConfig
     depth: DepthMap | None = None
     reference_pose: Pose2 | None = None
+    pose_depth: DepthMap | None = None
 
 
 def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
@@ -273,7 +347,10 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     el = np.asarray(grid.elevation_of_row(xy[:, 1]), dtype=np.float64) if len(xy) else np.zeros(0)
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
     pose = reference.T_world_reference
-    return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose)
+    pose_depth = depth
+    if config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
+        pose_depth = depth_map(reference, grid, config.camera_height_m, (config.pose_depth_rows, config.pose_depth_cols))
+    return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose, pose_depth)
 
 
 def detection_scale(pixels: int, config: CompassConfig) -> float:
@@ -452,6 +529,10 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     if config.record_pairs:
         k = ref_index[ri]
         diag["pairs_rad"] = np.column_stack([prepared.azimuth_rad[k], prepared.elevation_rad[k], az_q[qi]]).tolist()
+    if prepared.depth is not None and config.pose_from_bearings:
+        posed = _pose_from_bearings(prepared, az_q[qi], ref_index[ri], hypotheses, pixel_rad, config, diag)
+        if posed is not None:
+            return posed
     votes = np.asarray(wrap_angle(az_r[ri] - az_q[qi]), dtype=np.float64)
     theta, inliers, runner_up = kp.vote_consensus(votes, config.inlier_band_rad)
     n_in = int(inliers.sum())
@@ -582,6 +663,203 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     reliable = not problems
     reason = f"{n_in} inlier pairs of {len(qi)} matches" if reliable else "; ".join(problems)
     return Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag)
+
+
+def _pose_from_bearings(
+    prepared: PreparedCompass,
+    az_query_rad: np.ndarray,
+    ref_index: np.ndarray,
+    hypotheses: Hypotheses,
+    pixel_rad: float,
+    config: CompassConfig,
+    diag: dict[str, Any],
+) -> Estimate | None:
+    """The robot's pose (x, y, θ) resected from the matched pairs' bearings, when every pose check passes.
+
+    *Beyond the patent.* Each pair is a bearing ``az_query`` (query robot frame) to the world point behind the
+    reference keypoint (:meth:`DepthMap.world_points`). RANSAC over minimal 3-bearing sets, then weighted
+    Gauss–Newton (:mod:`factorloc.vision.resection`): a bearing's relative variance is
+    ``pixel² + (σ_D sin Δ / r)²`` (a range error σ_D along the reference ray, seen at angle Δ from range r;
+    σ_D as in :func:`resect`), the covariance ``σ̂² (JᵀWJ)⁻¹`` from the residuals' own variance, plus the
+    heading floor ``sigma_floor_rad`` and the position floor ``pose_sigma_floor_m``.
+    Returns None (the heading-only path then runs) when the pose fails a check; the failed checks are put in
+    ``diag["pose_rejected"]``.
+    """
+    from factorloc.verdicts import Check, Unit, render_checks
+    from factorloc.vision import resection as rs
+
+    depth = prepared.pose_depth or prepared.depth
+    az_ref, el_ref = prepared.azimuth_rad[ref_index], prepared.elevation_rad[ref_index]
+    pts = depth.world_points(az_ref, el_ref)
+    fit = rs.ransac(
+        pts,
+        az_query_rad,
+        config.pose_threshold_rad,
+        hypotheses=config.pose_hypotheses,
+        min_inliers=3,
+    )
+    if fit is None:
+        diag["pose_rejected"] = "no pose fits three bearings"
+        return None
+    inl = fit.inliers
+    sigma_range = np.maximum(config.depth_relative_sigma * depth.range_at(az_ref, el_ref), 0.5 * depth.spread_at(az_ref, el_ref))
+    az_ref_world = depth.T_world_reference.theta + az_ref
+    d = pts - np.array([fit.pose.x, fit.pose.y])
+    r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
+    sin_delta = np.abs(np.cos(az_ref_world) * d[:, 1] - np.sin(az_ref_world) * d[:, 0]) / r
+    weights = pixel_rad**2 / (pixel_rad**2 + (sigma_range * sin_delta / r) ** 2)
+    groups = _groups(pts, config.pose_group_m)
+    groups = _groups(pts, config.pose_group_m)
+    final = rs.refine(
+        pts[inl],
+        az_query_rad[inl],
+        fit.pose,
+        weights=weights[inl],
+        sigma_floor_rad=config.pose_residual_floor_px * pixel_rad,
+        jackknife=True,
+        groups=groups[inl],
+    )
+    n_in = fit.n_inliers
+    checks = [
+        Check.at_least("compass.pose.inliers", "resection inliers", n_in, config.min_pose_inliers, Unit.COUNT),
+        Check.at_least(
+            "compass.pose.inlier_ratio", "resection inlier ratio", n_in / len(inl), config.min_inlier_ratio, Unit.FRACTION
+        ),
+    ]
+    if final is None:
+        checks.append(Check.flag("compass.pose.solvable", "resection solvable", False, failure="singular resection"))
+    else:
+        cov = np.array(final.covariance)
+        leverage, extra = _group_leverage(pts[inl], final.pose, weights[inl], groups[inl])
+        s_res = max(final.residual_sigma_rad, config.pose_residual_floor_px * pixel_rad)
+        with np.errstate(invalid="ignore", over="ignore"):
+            cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
+        if not np.all(np.isfinite(cov)):
+            cov = np.diag([1e6, 1e6, math.pi**2])  # rests on one group alone: fails the σ checks below
+        cov[:2, :2] += np.eye(2) * config.pose_sigma_floor_m**2
+        cov[2, 2] += config.sigma_floor_rad**2
+        sigma_pos = float(math.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]))
+        sigma_theta = float(math.sqrt(cov[2, 2]))
+        checks += [
+            # a condition number of a 3×3 normal matrix: rounding moves it by ~1e-12 relative
+            Check.at_most(
+                "compass.pose.condition",
+                "resection condition number",
+                final.condition,
+                config.max_pose_condition,
+                tolerance=1e-9 * config.max_pose_condition,
+            ),
+            Check.at_most(
+                "compass.pose.residual",
+                "resection residual σ",
+                final.residual_sigma_rad,
+                config.max_pose_residual_rad,
+                Unit.RADIAN,
+            ),
+            Check.at_most("compass.pose.sigma_position", "σ position", sigma_pos, config.max_pose_sigma_position_m, Unit.METRE),
+            Check.at_most("compass.pose.sigma_heading", "σ heading", sigma_theta, config.max_sigma_rad, Unit.RADIAN),
+            Check.at_most(
+                "compass.pose.ambiguity", "rival pose support", fit.runner_up / n_in, config.max_pose_ambiguity, Unit.FRACTION
+            ),
+        ]
+        diag["pose_group_leverage"] = leverage
+        p = hypotheses.position()
+        if p is not None:
+            delta = np.array([final.pose.x - p[0], final.pose.y - p[1]])
+            s = cov[:2, :2] + np.diag([p[2] ** 2, p[3] ** 2])
+            d2 = float(delta @ np.linalg.solve(s, delta))
+            checks.append(
+                Check.at_most(
+                    "compass.pose.seed_position",
+                    f"d² from the {p[4]} position",
+                    d2,
+                    config.pose_seed_consistency_d2,
+                    Unit.SQUARED,
+                )
+            )
+        h = hypotheses.heading()
+        if h is not None:
+            gap = abs(float(wrap_angle(final.pose.theta - h[0])))
+            checks.append(
+                Check.at_most(
+                    "compass.pose.seed_heading",
+                    f"gap to the {h[2]} heading",
+                    gap,
+                    config.seed_consistency_n_sigma * math.hypot(sigma_theta, h[1]),
+                    Unit.RADIAN,
+                )
+            )
+    q = pts[inl] - pts[inl].mean(axis=0)
+    minor_m = float(math.sqrt(max(np.linalg.eigvalsh(q.T @ q / max(len(q), 1))[0], 0.0)))
+    span = float(np.ptp(np.unwrap(np.sort(az_query_rad[inl])))) if n_in else 0.0
+    diag.update(
+        pose_minor_spread_m=minor_m,
+        pose_span_rad=span,
+        pose_inliers=n_in,
+        pose_runner_up=fit.runner_up,
+        pose_resection=[final.pose.x, final.pose.y, final.pose.theta] if final is not None else None,
+        pose_condition=None if final is None else final.condition,
+        pose_residual_rad=None if final is None else final.residual_sigma_rad,
+    )
+    failed = [c for c in checks if not c.passed]
+    if failed:
+        diag["pose_rejected"] = render_checks(failed)
+        return None
+    displacement = float(np.hypot(final.pose.x - depth.T_world_reference.x, final.pose.y - depth.T_world_reference.y))
+    diag.update(
+        inliers=n_in,
+        inlier_ratio=n_in / len(inl),
+        displacement_m=displacement,
+        theta_relative_rad=float(wrap_angle(final.pose.theta - prepared.theta_reference_rad)),
+    )
+    if config.pose_needs_position_seed and hypotheses.position() is None:
+        # nothing corroborates the position: a look-alike texture a translation away (the same picture on another
+        # wall) fits the bearings as well as the truth, with the heading unchanged. Keep the heading marginal.
+        reason = f"heading of a pose from {n_in} bearings of {len(inl)} matches (no position hypothesis to check its position)"
+        return Estimate.heading(
+            STEP, final.pose.theta, sigma_theta, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks)
+        )
+    reason = f"pose from {n_in} bearings of {len(inl)} matches ({displacement:.2f} m from the reference)"
+    return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
+
+
+def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, groups: np.ndarray) -> tuple[float, np.ndarray]:
+    """The dominant group of bearings: its share of the pose's information, and what the covariance lacks without it.
+
+    With ``H = Σ_g H_g`` the weighted normal matrix of the bearings at ``pose`` (unit σ), the group ``g*`` of the
+    largest ``λ_max(H^-½ H_g H^-½)`` (its share of the information in some direction, in [0, 1]) is returned with
+    ``(H − H_g*)⁻¹ − H⁻¹`` (PSD; infinite when the rest is singular): added (× σ²) to the covariance, the pose
+    is as uncertain in every direction as the other groups alone make it — a direction that rests on one group
+    is not trusted beyond what the others verify.
+    """
+    d = points_xy_m - np.array([pose.x, pose.y])
+    r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    jac = np.column_stack([d[:, 1] / r2, -d[:, 0] / r2, -np.ones(len(d))])
+    outer = weights[:, None, None] * jac[:, :, None] * jac[:, None, :]
+    uniq, inverse = np.unique(groups, return_inverse=True)
+    gh = np.zeros((len(uniq), 3, 3))
+    np.add.at(gh, inverse.ravel(), outer)
+    h = gh.sum(axis=0)
+    w, v = np.linalg.eigh(h)
+    if w[0] <= 0.0:
+        return 1.0, np.full((3, 3), np.inf)
+    s = v @ np.diag(w**-0.5) @ v.T
+    shares = np.linalg.eigvalsh(s[None] @ gh @ s[None])[:, -1]
+    g = int(np.argmax(shares))
+    rest = h - gh[g]
+    wr = np.linalg.eigvalsh(rest)
+    if wr[0] <= 1e-12 * w[-1]:
+        return float(np.clip(shares[g], 0.0, 1.0)), np.full((3, 3), np.inf)
+    with np.errstate(invalid="ignore", over="ignore"):
+        extra = np.linalg.inv(rest) - np.linalg.inv(h)
+    return float(np.clip(shares[g], 0.0, 1.0)), 0.5 * (extra + extra.T)
+
+
+def _groups(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
+    """Integer labels of the world grid cells (``cell_m``) the points fall in."""
+    cells = np.floor(points_xy_m / cell_m).astype(np.int64)
+    _, labels = np.unique(cells, axis=0, return_inverse=True)
+    return labels.ravel()
 
 
 def _position_sensitivity(

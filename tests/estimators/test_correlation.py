@@ -288,3 +288,25 @@ def test_rendering_only_the_reachable_columns_changes_no_result(sim_reference, m
     for a, b in zip(restricted, full, strict=True):
         assert a.value("theta") == b.value("theta") and a.sigma("theta") == b.sigma("theta") and a.reliable == b.reliable
     assert sum(e.reliable and _err(e, t) < math.radians(1.0) for (t, _, _), e in zip(queries, restricted, strict=True)) >= 5
+
+
+def test_sim_seeded_by_the_compass_pose_commits_from_another_spot(sim_reference) -> None:
+    """Odometry σ 0.2 m (the issue's protocol): the compass's resected pose, handed on as the latest reliable
+    position, sets the correlation's parallax correction and scale — more reliable than from the odometry alone."""
+    from factorloc.estimators import compass
+
+    world, ref, prepared, _, _ = sim_reference
+    pc = compass.prepare(ref)
+    odo_only, with_pose, posed = [], [], 0
+    for theta, query, hyp in sim_queries(world, 16, (0.5, 2.0), 0.2, "clean", seed=23):
+        ec = compass.estimate(ref, query, hyp, prepared=pc)
+        seeded = co.estimate(ref, query, hyp.plus(ec), prepared=prepared)
+        if ec.reliable and ec.measures("x"):
+            posed += 1
+            assert seeded.seed.position_step == "compass"
+            if seeded.reliable:
+                assert _err(seeded, theta) <= 3.0 * seeded.sigma("theta")
+            with_pose.append(seeded.reliable)
+            odo_only.append(co.estimate(ref, query, hyp, prepared=prepared).reliable)
+    assert posed >= 3, f"only {posed} of 16 views gave a compass pose"  # measured: 4 (correlation reliable 4 vs 1)
+    assert sum(with_pose) > sum(odo_only), f"with the compass pose {sum(with_pose)}, odometry only {sum(odo_only)} of {posed}"
