@@ -25,6 +25,7 @@ CORE = [
     "factorloc.gating",
     "factorloc.fusion",
     "factorloc.pipeline",
+    "factorloc.places",
 ]
 OUTSIDE_THE_CORE = ("factorloc.sim", "factorloc.baselines", "factorloc.evaluation", "factorloc.cli", "factorloc.benchmarking")
 

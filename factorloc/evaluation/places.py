@@ -1,0 +1,229 @@
+"""Place recognition on a real laser log: a map of places along the log, recall@k on its loop relations.
+
+The protocol (issue #18): the map holds a place every ``spacing_m`` metres of the log's odometry path (the first
+scan at which the path length passes each multiple), placed at its odometry pose. For every *loop* relation
+``(t1, t2)`` of the ground truth (odometry path between them ≥ ``local_threshold_m``, the boundary of
+:mod:`factorloc.evaluation.relations`), the scan at ``t2`` is the query; the places taken within
+``exclude_window_s / 2`` of ``t2`` are left out (the robot's own recent past); a retrieved place is *correct*
+when it was built from a scan of the run of scans around ``t1`` whose odometry stays within ``neighbourhood_m``
+of ``t1``'s (the scan at ``t1`` and its neighbours in time). recall@k is the share of loop relations with a
+correct place among the top k.
+
+A relation none of whose correct places is in the map (a run around ``t1`` shorter than the spacing, or all
+within the excluded window) still counts, as a miss: the map is built the same way for every log.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from factorloc.datasets.rosbag import LaserLog
+from factorloc.errors import InputError
+from factorloc.evaluation.relations import Relations
+from factorloc.geometry import Pose2
+from factorloc.places import Place, PlaceMap, PlaceRecognizer, RecognitionConfig
+from factorloc.types import Query, Reference
+
+__all__ = [
+    "RecallResult",
+    "SimulatedRecall",
+    "correct_window_s",
+    "places_along_log",
+    "recognition_recall",
+    "simulated_place_map",
+    "simulated_recall",
+]
+
+
+def places_along_log(log: LaserLog, spacing_m: float = 1.0) -> tuple[PlaceMap, np.ndarray]:
+    """A place every ``spacing_m`` of odometry path: the map and the (N,) times of the places' scans.
+
+    Place ``i`` has id ``p<i>`` (zero-padded), the scan at its time as reference, its odometry pose as pose.
+    """
+    if not (isinstance(spacing_m, (int, float)) and spacing_m > 0):
+        raise InputError(f"spacing_m must be > 0, got {spacing_m!r}")
+    stamps = log.scans.stamps_s
+    inside = (stamps >= log.odometry.stamps_s[0]) & (stamps <= log.odometry.stamps_s[-1])
+    idx = np.flatnonzero(inside)
+    path = np.asarray(log.odometry.path_length_m(stamps[idx]))
+    chosen, next_mark = [], 0.0
+    for j, d in zip(idx, path, strict=True):
+        if d >= next_mark and len(log.scans.scans[j]) > 0:
+            chosen.append(int(j))
+            next_mark = (math.floor(d / spacing_m) + 1) * spacing_m
+    width = len(str(len(chosen)))
+    places = []
+    for n, j in enumerate(chosen):
+        T = log.odometry.pose_at(float(stamps[j]))
+        places.append(
+            Place(f"p{n:0{width}d}", Reference(scan=log.scans.scans[j], T_world_reference=T, name=f"t={stamps[j]:.3f}"), T)
+        )
+    return PlaceMap(places), stamps[chosen]
+
+
+def correct_window_s(log: LaserLog, t1_s: float, neighbourhood_m: float = 1.0, tolerance_s: float = 2e-3) -> tuple[float, float]:
+    """The time span of the run of scans around ``t1_s`` whose odometry lies within ``neighbourhood_m`` of t1's."""
+    stamps = log.scans.stamps_s
+    i = log.scans.index_at(t1_s, tolerance_s)
+    p1 = log.odometry.pose_at(float(stamps[i])).translation
+    lo = hi = i
+
+    def near(j: int) -> bool:
+        t = float(stamps[j])
+        if not (log.odometry.stamps_s[0] <= t <= log.odometry.stamps_s[-1]):
+            return False
+        return bool(np.linalg.norm(log.odometry.pose_at(t).translation - p1) <= neighbourhood_m)
+
+    while lo > 0 and near(lo - 1):
+        lo -= 1
+    while hi < len(stamps) - 1 and near(hi + 1):
+        hi += 1
+    return float(stamps[lo]), float(stamps[hi])
+
+
+@dataclass(frozen=True)
+class RecallResult:
+    """Place recognition on one log's loop relations.
+
+    ``ranks[i]`` is the 1-based rank of the first correct place retrieved for loop relation ``i`` (``inf``: none
+    among the top ``max_k``); ``heading_change_rad[i]`` the relation's |Δθ| (a 180° scanner sees little of a
+    place it comes back to facing the other way); ``places`` the size of the map.
+    """
+
+    log: str
+    places: int
+    ranks: np.ndarray
+    heading_change_rad: np.ndarray
+    max_k: int
+
+    def recall_at(self, k: int) -> float:
+        if not 1 <= k <= self.max_k:
+            raise InputError(f"k must be in [1, {self.max_k}], got {k!r}")
+        return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+    def recall_at_facing(self, k: int, max_heading_change_rad: float = math.pi / 2) -> float:
+        """recall@k over the relations whose heading changed by less than ``max_heading_change_rad``."""
+        sel = self.heading_change_rad < max_heading_change_rad
+        return float(np.mean(self.ranks[sel] <= k)) if sel.any() else math.nan
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "log": self.log,
+            "places": self.places,
+            "loop_relations": int(self.ranks.size),
+            "recall_at_1": self.recall_at(1),
+            "recall_at_5": self.recall_at(min(5, self.max_k)),
+            "facing_relations": int(np.sum(self.heading_change_rad < math.pi / 2)),
+            "recall_at_1_facing": self.recall_at_facing(1),
+            "recall_at_5_facing": self.recall_at_facing(min(5, self.max_k)),
+        }
+
+
+def recognition_recall(
+    log: LaserLog,
+    relations: Relations,
+    config: RecognitionConfig = RecognitionConfig(),
+    *,
+    name: str = "",
+    spacing_m: float = 1.0,
+    neighbourhood_m: float = 1.0,
+    exclude_window_s: float = 30.0,
+    local_threshold_m: float = 5.0,
+    max_k: int = 5,
+    tolerance_s: float = 2e-3,
+    indices: Sequence[int] | None = None,
+) -> RecallResult:
+    """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
+
+    ``indices`` restricts to those relations (a subset for tests); only loop relations are scored.
+    """
+    place_map, place_t = places_along_log(log, spacing_m)
+    recognizer = PlaceRecognizer(place_map, config)
+    time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
+    ranks, dth = [], []
+    for i in range(len(relations)) if indices is None else indices:
+        t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
+        if log.odometry.distance_between(t1, t2)[0] < local_threshold_m:
+            continue
+        lo, hi = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
+        query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
+        cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: abs(time_of[pid] - t2) <= exclude_window_s / 2)
+        rank = math.inf
+        for r, c in enumerate(cands, start=1):
+            if lo <= time_of[c.place_id] <= hi:
+                rank = r
+                break
+        ranks.append(rank)
+        dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
+    return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), max_k)
+
+
+# --------------------------------------------------------------------------
+# The simulator
+# --------------------------------------------------------------------------
+def simulated_place_map(world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3) -> PlaceMap:
+    """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
+    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading."""
+    from factorloc.sim import render_scan
+
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = world.bounds_xy  # type: ignore[attr-defined]
+    xs = np.arange(x0 + spacing_m / 2, x1, spacing_m)
+    ys = np.arange(y0 + spacing_m / 2, y1, spacing_m)
+    grid = np.array([(x, y) for y in ys for x in xs])
+    free = grid[world.is_free(grid, clearance_m)]  # type: ignore[attr-defined]
+    places = []
+    for n, (x, y) in enumerate(free):
+        T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
+        places.append(Place(f"g{n:03d}", Reference(scan=render_scan(world, T, rng=rng), T_world_reference=T), T))  # type: ignore[arg-type]
+    return PlaceMap(places)
+
+
+@dataclass(frozen=True)
+class SimulatedRecall:
+    """Place recognition on simulated queries: ``ranks`` of the first correct place (``inf``: not in the top
+    ``max_k``); a place is correct when it lies within ``neighbourhood_m`` of the query's true position."""
+
+    ranks: np.ndarray
+    max_k: int
+    seed: int
+
+    def recall_at(self, k: int) -> float:
+        return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+
+def simulated_recall(
+    world: object,
+    place_map: PlaceMap,
+    n_queries: int,
+    seed: int,
+    config: RecognitionConfig = RecognitionConfig(),
+    *,
+    neighbourhood_m: float = 1.0,
+    max_k: int = 5,
+    clearance_m: float = 0.3,
+) -> SimulatedRecall:
+    """recall@k of :class:`~factorloc.places.PlaceRecognizer` on ``n_queries`` random free poses (random
+    headings) of a simulated world, each sensed by a 360° laser scan; reproducible from ``seed``."""
+    from factorloc.sim import render_scan
+    from factorloc.sim.motion import sample_free_pose
+
+    rng = np.random.default_rng(seed)
+    recognizer = PlaceRecognizer(place_map, config)
+    pos = place_map.positions_m()
+    ranks = []
+    for i in range(n_queries):
+        T = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+        q = Query(scan=render_scan(world, T, rng=rng), id=f"q{i}")  # type: ignore[arg-type]
+        ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
+        rank = math.inf
+        for r, c in enumerate(recognizer.candidates(q, max_k), start=1):
+            if c.place_id in ok:
+                rank = r
+                break
+        ranks.append(rank)
+    return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)

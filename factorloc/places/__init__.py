@@ -1,0 +1,38 @@
+"""Places: a map of the places a robot knows, choosing among them, and place recognition.
+
+Above :mod:`factorloc.pipeline` in the layering (types → estimators → gating → fusion → pipeline → places):
+
+- :mod:`~factorloc.places.placemap`: :class:`Place`, :class:`PlaceMap` (built from a scenario or one by one,
+  saved as a scenario without queries);
+- :mod:`~factorloc.places.choose`: the places whose view can overlap a query, given a reliable pose hypothesis;
+- :mod:`~factorloc.places.recognition`: place recognition without one (Scan Context, panorama Fourier signature).
+"""
+
+from factorloc.places.choose import ChoiceConfig, places_in_view
+from factorloc.places.placemap import PLACE_COVARIANCE_KEY, Place, PlaceMap
+from factorloc.places.recognition import (
+    PlaceCandidate,
+    PlaceRecognizer,
+    RecognitionConfig,
+    panorama_signature,
+    scan_context,
+    scan_context_distance,
+    scan_context_key,
+    shape_distribution,
+)
+
+__all__ = [
+    "PLACE_COVARIANCE_KEY",
+    "ChoiceConfig",
+    "Place",
+    "PlaceCandidate",
+    "PlaceMap",
+    "PlaceRecognizer",
+    "RecognitionConfig",
+    "panorama_signature",
+    "places_in_view",
+    "scan_context",
+    "scan_context_distance",
+    "scan_context_key",
+    "shape_distribution",
+]
