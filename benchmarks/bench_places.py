@@ -46,7 +46,16 @@ def main() -> None:
     ap.add_argument("--grid", type=float, nargs="*", default=[8.0, 15.0, 25.0])
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    cfg = RecognitionConfig(n_rings=args.rings, n_sectors=args.sectors, max_range_m=args.max_range, n_candidates=args.candidates)
+    cfg = RecognitionConfig(
+        n_rings=args.rings,
+        n_sectors=args.sectors,
+        max_range_m=args.max_range,
+        n_candidates=args.candidates,
+        d2_max_range_m=args.d2_range,
+    )
+    if args.folds:
+        folds(args, cfg)
+        return
     rows = []
     print(f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6}")
     for name in args.logs:

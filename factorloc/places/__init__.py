@@ -5,10 +5,12 @@ Above :mod:`factorloc.pipeline` in the layering (types → estimators → gating
 - :mod:`~factorloc.places.placemap`: :class:`Place`, :class:`PlaceMap` (built from a scenario or one by one,
   saved as a scenario without queries);
 - :mod:`~factorloc.places.choose`: the places whose view can overlap a query, given a reliable pose hypothesis;
-- :mod:`~factorloc.places.recognition`: place recognition without one (Scan Context, panorama Fourier signature).
+- :mod:`~factorloc.places.recognition`: place recognition without one (D2, Scan Context, panorama Fourier signature);
+- :mod:`~factorloc.places.multi`: the hierarchy against several places, fused on one pose (:class:`PlaceLocalization`).
 """
 
 from factorloc.places.choose import ChoiceConfig, places_in_view
+from factorloc.places.multi import MultiPlaceLocalizer, PlaceLocalization, PlaceRun, place_factor, split_step_name
 from factorloc.places.placemap import PLACE_COVARIANCE_KEY, Place, PlaceMap
 from factorloc.places.recognition import (
     PlaceCandidate,
@@ -24,15 +26,20 @@ from factorloc.places.recognition import (
 __all__ = [
     "PLACE_COVARIANCE_KEY",
     "ChoiceConfig",
+    "MultiPlaceLocalizer",
     "Place",
     "PlaceCandidate",
+    "PlaceLocalization",
     "PlaceMap",
     "PlaceRecognizer",
+    "PlaceRun",
     "RecognitionConfig",
     "panorama_signature",
+    "place_factor",
     "places_in_view",
     "scan_context",
     "scan_context_distance",
     "scan_context_key",
     "shape_distribution",
+    "split_step_name",
 ]
