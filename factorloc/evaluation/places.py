@@ -26,16 +26,19 @@ from factorloc.errors import InputError
 from factorloc.evaluation.relations import Relations
 from factorloc.geometry import Pose2
 from factorloc.places import Place, PlaceMap, PlaceRecognizer, RecognitionConfig
-from factorloc.types import Query, Reference
+from factorloc.types import Odometry, Query, Reference
 
 __all__ = [
     "RecallResult",
     "SimulatedRecall",
+    "TrackFigures",
     "correct_window_s",
     "places_along_log",
     "recognition_recall",
     "simulated_place_map",
     "simulated_recall",
+    "simulated_track",
+    "track_figures",
 ]
 
 
@@ -167,9 +170,14 @@ def recognition_recall(
 # --------------------------------------------------------------------------
 def simulated_place_map(world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3) -> PlaceMap:
     """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
-    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading."""
-    from factorloc.sim import render_scan
+    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading.
 
+    Each place's covariance is the simulator's per-scan sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
+    ``SCAN_POSE_SIGMA_RAD``): the scan was taken from a pose that far from the one the map states."""
+    from factorloc.sim import render_scan
+    from factorloc.sim.laser import SCAN_POSE_SIGMA_M, SCAN_POSE_SIGMA_RAD
+
+    cov = np.diag([SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_RAD**2])
     rng = np.random.default_rng(seed)
     x0, y0, x1, y1 = world.bounds_xy  # type: ignore[attr-defined]
     xs = np.arange(x0 + spacing_m / 2, x1, spacing_m)
@@ -179,7 +187,8 @@ def simulated_place_map(world: object, spacing_m: float = 1.0, seed: int = 0, cl
     places = []
     for n, (x, y) in enumerate(free):
         T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
-        places.append(Place(f"g{n:03d}", Reference(scan=render_scan(world, T, rng=rng), T_world_reference=T), T))  # type: ignore[arg-type]
+        scan = render_scan(world, T, rng=rng)  # type: ignore[arg-type]
+        places.append(Place(f"g{n:03d}", Reference(scan=scan, T_world_reference=T), T, cov))
     return PlaceMap(places)
 
 
@@ -227,3 +236,165 @@ def simulated_recall(
                 break
         ranks.append(rank)
     return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)
+
+
+def _free_segment(world: object, a: np.ndarray, b: np.ndarray, clearance_m: float) -> bool:
+    n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.05)) + 1)
+    pts = a[None] + np.linspace(0.0, 1.0, n)[:, None] * (b - a)[None]
+    return bool(np.all(world.is_free(pts, clearance_m)))  # type: ignore[attr-defined]
+
+
+def _leg(world: object, start: Pose2, length_m: float, rng: np.random.Generator, clearance_m: float) -> np.ndarray:
+    """A collision-free waypoint path of at least ``length_m`` from ``start`` (N×3, ≤ 5 cm apart)."""
+    from factorloc.sim.motion import sample_free_pose, waypoint_trajectory
+
+    wps: list = [start]
+    here, total = start.translation, 0.0
+    while total < length_m:
+        for _ in range(500):
+            p = sample_free_pose(world, rng, clearance_m).translation  # type: ignore[arg-type]
+            if 0.5 < np.linalg.norm(p - here) < 4.0 and _free_segment(world, here, p, clearance_m):
+                break
+        else:
+            raise InputError("no reachable waypoint found from the current position")
+        total += float(np.linalg.norm(p - here))
+        wps.append((float(p[0]), float(p[1])))
+        here = p
+    return waypoint_trajectory(wps, step_m=0.05, step_rad=0.05)
+
+
+def simulated_track(
+    world: object,
+    place_map: PlaceMap,
+    n_queries: int,
+    seed: int,
+    *,
+    kidnaps: int = 0,
+    spacing_m: float = 0.25,
+    clearance_m: float = 0.35,
+) -> object:
+    """A robot driving through a simulated world, a 360° laser scan every ``spacing_m`` of travel (turns count
+    0.3 m/rad): a :class:`~factorloc.datasets.Scenario` whose references are ``place_map``'s places and whose
+    queries, in time order, carry one continuous odometry run (:func:`factorloc.sim.simulate_odometry`'s drift,
+    restarted from the odometry's last pose after a kidnapping so that the odometry does not see it) and the truth.
+
+    ``kidnaps`` times the robot is carried to a random free pose between two queries (tag ``kidnapped`` on the
+    first query after it). Each query names its nearest place as ``reference_id``. Reproducible from ``seed``.
+    """
+    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference
+    from factorloc.sim import render_scan
+    from factorloc.sim.motion import sample_free_pose, simulate_odometry
+
+    rng = np.random.default_rng(seed)
+    if n_queries < 2:
+        raise InputError(f"n_queries must be >= 2, got {n_queries!r}")
+    cuts = sorted(rng.choice(np.arange(10, n_queries - 5), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    bounds = [0, *cuts, n_queries]
+    pos = place_map.positions_m()
+    queries = []
+    odo_end: Pose2 | None = None
+    start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+    for s, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        n = b - a
+        path = _leg(world, start, spacing_m * n + 1.0, rng, clearance_m)
+        steps = np.hypot(np.diff(path[:, 0]), np.diff(path[:, 1])) + 0.3 * np.abs(np.diff(np.unwrap(path[:, 2])))
+        arc = np.concatenate([[0.0], np.cumsum(steps)])
+        idx = np.minimum(np.searchsorted(arc, spacing_m * np.arange(n)), len(path) - 1)
+        run = simulate_odometry(path[: idx[-1] + 1], rng)
+        T0 = Pose2.from_array(run.poses[0])
+        for j, i in enumerate(idx):
+            truth = Pose2.from_array(path[i])
+            rel = T0.between(Pose2.from_array(run.poses[i]))
+            T_odo = rel if odo_end is None else odo_end.compose(rel)
+            o = run.odometry(int(i))
+            k = a + j
+            q = Query(
+                scan=render_scan(world, truth, rng=rng),  # type: ignore[arg-type]
+                odometry=Odometry(T_odo, o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad),
+                id=f"q{k:04d}",
+            )
+            nearest = place_map.ids[int(np.argmin(np.hypot(*(pos - truth.translation).T)))]
+            faults = ("kidnapped",) if (s > 0 and j == 0) else ()
+            queries.append(ScenarioQuery(q, float(k), truth, faults, nearest))
+        odo_end = queries[-1].query.odometry.T_world_robot  # type: ignore[union-attr]
+        start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+    refs = tuple(ScenarioReference(p.id, p.reference) for p in place_map)
+    return Scenario(f"track-{seed}", refs, tuple(queries), seed=seed, metadata={"kidnaps": kidnaps, "spacing_m": spacing_m})
+
+
+# --------------------------------------------------------------------------
+# Tracking figures
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrackFigures:
+    """How a tracker did on a scenario with ground truth.
+
+    ``rmse_position_m`` / ``rmse_heading_deg``: over the results the tracker vouches for (not flagged: see
+    :attr:`~factorloc.places.TrackResult.flagged`); ``rmse_position_all_m``: over every result that has a pose.
+    ``confidently_wrong``: share of the unflagged results whose position error lies beyond the 3σ ellipse of their
+    covariance (2-dof χ² 11.83) or whose heading error exceeds 3σθ. ``flagged``: share flagged. ``kidnaps`` and
+    ``recovered_within_3``: kidnappings (queries tagged ``kidnapped``) and those after which a ``relocalized``
+    result within 10 cm and 1° of the truth came within 3 queries (the kidnapped query and the two after it).
+    ``median_seconds``: median wall time of an update.
+    """
+
+    queries: int
+    rmse_position_m: float
+    rmse_heading_deg: float
+    rmse_position_all_m: float
+    confidently_wrong: float
+    flagged: float
+    kidnaps: int
+    recovered_within_3: int
+    median_seconds: float
+
+    def to_dict(self) -> dict[str, float]:
+        return dict(self.__dict__)
+
+
+def track_figures(scenario: object, results: Sequence[object]) -> TrackFigures:
+    """The :class:`TrackFigures` of ``results`` (one :class:`~factorloc.places.TrackResult` per query of
+    ``scenario``, in order)."""
+    from factorloc.odometry_model import CHI2_3SIGMA_2DOF
+    from factorloc.places import TrackState
+
+    qs = scenario.queries  # type: ignore[attr-defined]
+    if len(qs) != len(results):
+        raise InputError(f"{len(results)} results for {len(qs)} queries")
+    pos_ok, th_ok, pos_all, wrong, flagged, secs = [], [], [], 0, 0, []
+    good: list[bool] = []
+    for q, r in zip(qs, results, strict=True):
+        secs.append(r.seconds)  # type: ignore[attr-defined]
+        e = np.array([r.pose.x - q.truth.x, r.pose.y - q.truth.y])  # type: ignore[attr-defined]
+        eth = abs(math.remainder(r.pose.theta - q.truth.theta, 2 * math.pi))  # type: ignore[attr-defined]
+        good.append(bool(np.hypot(*e) < 0.1 and eth < math.radians(1.0)))
+        if r.state is TrackState.LOST and r.localization.undetermined:  # type: ignore[attr-defined]
+            flagged += 1
+            continue
+        pos_all.append(float(e @ e))
+        if r.flagged:  # type: ignore[attr-defined]
+            flagged += 1
+            continue
+        pos_ok.append(float(e @ e))
+        th_ok.append(eth * eth)
+        cov = r.covariance  # type: ignore[attr-defined]
+        d2 = float(e @ np.linalg.solve(cov[:2, :2], e))
+        if d2 > CHI2_3SIGMA_2DOF or eth > 3.0 * math.sqrt(cov[2, 2]):
+            wrong += 1
+    kid = [i for i, q in enumerate(qs) if "kidnapped" in q.faults]
+    recovered = sum(
+        any(results[j].state is TrackState.RELOCALIZED and good[j] for j in range(i, min(i + 3, len(qs))))  # type: ignore[attr-defined]
+        for i in kid
+    )
+    n_ok = len(pos_ok)
+    return TrackFigures(
+        len(qs),
+        math.sqrt(np.mean(pos_ok)) if n_ok else math.nan,
+        math.degrees(math.sqrt(np.mean(th_ok))) if n_ok else math.nan,
+        math.sqrt(np.mean(pos_all)) if pos_all else math.nan,
+        wrong / n_ok if n_ok else math.nan,
+        flagged / len(qs),
+        len(kid),
+        int(recovered),
+        float(np.median(secs)),
+    )

@@ -22,6 +22,7 @@ from factorloc.places.recognition import (
     scan_context_key,
     shape_distribution,
 )
+from factorloc.places.tracker import Tracker, TrackerConfig, TrackResult, TrackState
 
 __all__ = [
     "PLACE_COVARIANCE_KEY",
@@ -34,6 +35,10 @@ __all__ = [
     "PlaceRecognizer",
     "PlaceRun",
     "RecognitionConfig",
+    "TrackResult",
+    "TrackState",
+    "Tracker",
+    "TrackerConfig",
     "panorama_signature",
     "place_factor",
     "places_in_view",

@@ -194,8 +194,12 @@ class MultiPlaceLocalizer:
             factors.extend(run.factors)
         if not factors:
             seed = query.odometry.T_world_robot if query.odometry is not None else Pose2()
-            loc = Localization(seed, np.diag([math.inf] * 3), (), self.strategy.name, (Component.X, Component.Y, Component.THETA), self.config)
-            return PlaceLocalization(loc, (), tuple((r.place_id, "no reliable estimate against this place") for r in runs), tuple(runs))
+            loc = Localization(
+                seed, np.diag([math.inf] * 3), (), self.strategy.name, (Component.X, Component.Y, Component.THETA), self.config
+            )
+            return PlaceLocalization(
+                loc, (), tuple((r.place_id, "no reliable estimate against this place") for r in runs), tuple(runs)
+            )
         loc = fuse(factors, self.strategy, self.config.gating)
         loc = Localization(loc.pose, loc.covariance, loc.steps, loc.fused_with, loc.undetermined, self.config, loc.checks)
         used, dropped = [], []
