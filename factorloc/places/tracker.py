@@ -3,25 +3,27 @@
 :class:`Tracker` keeps one ``gtsam.Pose2`` per query in an incremental graph (Kaess et al., *iSAM2*, IJRR 2012):
 
 * **between factors** from the odometry increments ``Δ = T_odom(k-1)⁻¹ T_odom(k)``, σ from the
-  :class:`~factorloc.odometry_model.OdometryModel` of the increment (its per-metre and per-radian terms, with
-  per-increment floors: :attr:`TrackerConfig.odometry_model`);
-* **place factors**: the prediction ``x̂ = x(k-1) ∘ Δ`` (covariance ``F P Fᵀ + G Q Gᵀ``) chooses the places in view
-  (:func:`~factorloc.places.places_in_view`), the hierarchy runs against them seeded by the prediction
+  :class:`~factorloc.odometry_model.OdometryModel` of the increment (its per-metre and per-radian terms, with per-
+  increment floors: :attr:`TrackerConfig.odometry_model`);
+* **place factors**: the prediction ``x̂ = x(k-1) ∘ Δ`` (covariance ``F P Fᵀ + G Q Gᵀ``) chooses the places in
+  view (:func:`~factorloc.places.places_in_view`), the hierarchy runs against them seeded by the prediction
   (:class:`~factorloc.places.MultiPlaceLocalizer`), and each place factor is **gated against the prediction**: its
   squared Mahalanobis distance to the prediction (covariance ``P̂ + R``) against the χ² quantile of
   :attr:`TrackerConfig.gate_probability` with one degree of freedom per component it measures
   (``tracker.prediction`` check). A rejected factor does not enter the graph;
 * **kidnapping**: after :attr:`TrackerConfig.kidnap_after` consecutive queries with places in view but no place
   factor consistent with the prediction (all rejected by the gate, or none reliable), or when the position σ
-  exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the
-  place with the heading of the signature's best shift, their factors gated together); success starts a new chain
-  (a new pose with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
+  exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
+  (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the place with
+  the heading of the signature's best shift, their factors gated together); success starts a new chain (a new pose
+  with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
-pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tracker.jump`` — the squared Mahalanobis distance of the new estimate from the prediction (3 dof), which flags
-any result that moved more than the prediction's 3σ allows. The tracker never restarts silently: a new chain is
-always a ``RELOCALIZED`` result with its reason.
+pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tracker.jump`` — the squared
+Mahalanobis distance of the new estimate from the prediction (3 dof), which flags any result that moved more than
+the prediction's 3σ allows. The tracker never restarts silently: a new chain is always a ``RELOCALIZED`` result
+with its reason.
 """
 
 from __future__ import annotations
@@ -271,10 +273,9 @@ class Tracker:
                 checks.append(check)
                 if check.passed:
                     accepted.append(r.estimate)
-        tried = [c for c in checks if c.code == "tracker.prediction"]
-        if accepted or not in_view:
-            self._rejected_run = 0 if accepted else self._rejected_run
-        else:
+        if accepted:
+            self._rejected_run = 0
+        elif in_view:
             # places in view, nothing consistent with the prediction: rejected factors, or none reliable (the
             # hierarchy seeded at a wrong prediction often finds nothing)
             self._rejected_run += 1
