@@ -19,7 +19,7 @@ import typer
 from rich.console import Console
 
 import factorloc
-from factorloc import cli_convert, jit
+from factorloc import cli_convert, cli_track, jit
 from factorloc.cli_render import (
     evaluation_steps_table,
     evaluation_summary_table,
@@ -376,6 +376,7 @@ def demo(
 
 
 cli_convert.register(app)
+cli_track.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()
