@@ -26,6 +26,7 @@ CORE = [
     "factorloc.fusion",
     "factorloc.pipeline",
     "factorloc.places",
+    "factorloc.ros",
 ]
 OUTSIDE_THE_CORE = ("factorloc.sim", "factorloc.baselines", "factorloc.evaluation", "factorloc.cli", "factorloc.benchmarking")
 
