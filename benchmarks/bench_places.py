@@ -13,6 +13,7 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --every 10      # every 10th relation (quick)
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --json out.json
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --folds            # leave-one-log-out D2 radius
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
 """
 
 from __future__ import annotations
@@ -44,6 +45,9 @@ def main() -> None:
     ap.add_argument("--d2-range", type=float, default=RecognitionConfig().d2_max_range_m)
     ap.add_argument("--folds", action="store_true", help="fit the D2 radius leave-one-log-out over --grid")
     ap.add_argument("--grid", type=float, nargs="*", default=[8.0, 15.0, 25.0])
+    ap.add_argument("--sim", action="store_true", help="recall on the simulated apartment instead (--seeds, --queries)")
+    ap.add_argument("--seeds", type=int, nargs="*", default=[201, 202, 203])
+    ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     cfg = RecognitionConfig(
@@ -55,6 +59,9 @@ def main() -> None:
     )
     if args.folds:
         folds(args, cfg)
+        return
+    if args.sim:
+        simulated(args, cfg)
         return
     rows = []
     print(f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6}")
@@ -72,6 +79,19 @@ def main() -> None:
         )
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
+
+
+def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """recall@1/@5 on random poses of the simulated apartment (a place every metre of a grid; 360° scans)."""
+    from factorloc.evaluation.places import simulated_place_map, simulated_recall
+    from factorloc.sim import apartment
+
+    world = apartment()
+    place_map = simulated_place_map(world, 1.0, seed=0)
+    print(f"{'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6}")
+    for seed in args.seeds:
+        r = simulated_recall(world, place_map, args.queries, seed, cfg)
+        print(f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}%")
 
 
 def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:

@@ -76,9 +76,13 @@ class RecognitionConfig:
     rank_by
         ``"shape_distribution"`` (default): places ranked by the D2 shape distribution, Scan Context only gives the
         heading of the top k; ``"scan_context"``: ranked by Scan Context (key, then distance).
-    d2_max_range_m, d2_bins, d2_voxel_m
-        The D2 shape distribution: points within ``d2_max_range_m`` (m), thinned to one per ``d2_voxel_m`` grid
-        cell, their pairwise distances binned in ``d2_bins`` bins over ``[0, 2·d2_max_range_m]``.
+    d2_max_range_m
+        The D2 shape distribution takes the points within this range of the robot (m); its bins span
+        ``[0, 2·d2_max_range_m]``.
+    d2_bins
+        Number of bins of the D2 histogram.
+    d2_voxel_m
+        The D2 points are thinned to one per grid cell of this size (m).
     strip_rows, strip_columns
         Size of the panorama strip the Fourier signature is taken from (px).
     strip_fov_rad

@@ -96,8 +96,10 @@ class TrackerConfig:
         Consecutive queries whose place factors all fail the gate before the tracker re-localizes.
     lost_sigma_m
         Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
-    initial_pose, initial_covariance
+    initial_pose
         A known start (world frame); None: the first query is localized by place recognition.
+    initial_covariance
+        3×3 covariance of ``initial_pose`` (world frame); None: 5 cm and 2°.
     share_query_error
         The n place factors of one query share the error of the query's own scan (its pose error, its noise): with
         True (default) each one's covariance is multiplied by n before they enter the graph, so that together they
