@@ -14,6 +14,7 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --json out.json
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --folds            # leave-one-log-out D2 radius
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ def main() -> None:
     ap.add_argument("--grid", type=float, nargs="*", default=[8.0, 15.0, 25.0])
     ap.add_argument("--sim", action="store_true", help="recall on the simulated apartment instead (--seeds, --queries)")
     ap.add_argument("--seeds", type=int, nargs="*", default=[201, 202, 203])
+    ap.add_argument("--modality", choices=["scan", "panorama", "both"], default="scan", help="what the simulated queries sense")
     ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
@@ -87,10 +89,13 @@ def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
     from factorloc.sim import apartment
 
     world = apartment()
-    place_map = simulated_place_map(world, 1.0, seed=0)
-    print(f"{'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6}")
+    width = 0 if args.modality == "scan" else 512
+    place_map = simulated_place_map(world, 1.0, seed=0, panorama_width_px=width)
+    print(f"{args.modality}: {'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6}")
     for seed in args.seeds:
-        r = simulated_recall(world, place_map, args.queries, seed, cfg)
+        r = simulated_recall(
+            world, place_map, args.queries, seed, cfg, panorama_width_px=width, with_scan=args.modality == "both"
+        )
         print(f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}%")
 
 

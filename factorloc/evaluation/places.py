@@ -168,13 +168,17 @@ def recognition_recall(
 # --------------------------------------------------------------------------
 # The simulator
 # --------------------------------------------------------------------------
-def simulated_place_map(world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3) -> PlaceMap:
+def simulated_place_map(
+    world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
+) -> PlaceMap:
     """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
     (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading.
 
-    Each place's covariance is the simulator's per-scan sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
+    With ``panorama_width_px`` > 0 each place also holds a rendered 360° panorama of that width
+    (:func:`factorloc.sim.render_panorama`, camera at 1 m). Each place's covariance is the simulator's per-scan
+    sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
     ``SCAN_POSE_SIGMA_RAD``): the scan was taken from a pose that far from the one the map states."""
-    from factorloc.sim import render_scan
+    from factorloc.sim import render_panorama, render_scan
     from factorloc.sim.laser import SCAN_POSE_SIGMA_M, SCAN_POSE_SIGMA_RAD
 
     cov = np.diag([SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_RAD**2])
@@ -188,7 +192,8 @@ def simulated_place_map(world: object, spacing_m: float = 1.0, seed: int = 0, cl
     for n, (x, y) in enumerate(free):
         T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
         scan = render_scan(world, T, rng=rng)  # type: ignore[arg-type]
-        places.append(Place(f"g{n:03d}", Reference(scan=scan, T_world_reference=T), T, cov))
+        pano = render_panorama(world, T, width_px=panorama_width_px) if panorama_width_px > 0 else None  # type: ignore[arg-type]
+        places.append(Place(f"g{n:03d}", Reference(panorama=pano, scan=scan, T_world_reference=T), T, cov))
     return PlaceMap(places)
 
 
@@ -215,10 +220,14 @@ def simulated_recall(
     neighbourhood_m: float = 1.0,
     max_k: int = 5,
     clearance_m: float = 0.3,
+    panorama_width_px: int = 0,
+    with_scan: bool = False,
 ) -> SimulatedRecall:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on ``n_queries`` random free poses (random
-    headings) of a simulated world, each sensed by a 360° laser scan; reproducible from ``seed``."""
-    from factorloc.sim import render_scan
+    headings) of a simulated world, each sensed by a 360° laser scan — or, with ``panorama_width_px`` > 0, by a
+    rendered panorama (the places must hold panoramas), and a scan too with ``with_scan``; reproducible from
+    ``seed``."""
+    from factorloc.sim import render_panorama, render_scan
     from factorloc.sim.motion import sample_free_pose
 
     rng = np.random.default_rng(seed)
@@ -227,7 +236,12 @@ def simulated_recall(
     ranks = []
     for i in range(n_queries):
         T = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
-        q = Query(scan=render_scan(world, T, rng=rng), id=f"q{i}")  # type: ignore[arg-type]
+        if panorama_width_px > 0:
+            pano = render_panorama(world, T, width_px=panorama_width_px)  # type: ignore[arg-type]
+            scan = render_scan(world, T, rng=rng) if with_scan else None  # type: ignore[arg-type]
+            q = Query(panorama=pano, scan=scan, id=f"q{i}")
+        else:
+            q = Query(scan=render_scan(world, T, rng=rng), id=f"q{i}")  # type: ignore[arg-type]
         ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
         rank = math.inf
         for r, c in enumerate(recognizer.candidates(q, max_k), start=1):

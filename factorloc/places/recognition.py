@@ -301,9 +301,11 @@ class PlaceCandidate:
 class PlaceRecognizer:
     """Top-k places of a :class:`PlaceMap` for a query, from rotation-invariant signatures.
 
-    The places' signatures are computed once, here. A query with a scan is matched by Scan Context against
-    the places with a scan or cloud (a cloud is cut to its planar projection); otherwise a query with a
-    panorama is matched by the Fourier signature against the places with a panorama.
+    The places' signatures are computed once, here. A query with a scan is matched against the places with a
+    scan or cloud (a cloud is cut to its planar projection; ranked by :attr:`RecognitionConfig.rank_by`); a query
+    with a panorama and no scan by the Fourier signature against the places with a panorama; a query with both,
+    against the places with both, by the sum of the D2 and panorama distances each divided by its median over
+    the places.
     """
 
     def __init__(self, place_map: PlaceMap, config: RecognitionConfig = RecognitionConfig()) -> None:
@@ -330,6 +332,10 @@ class PlaceRecognizer:
         self._scs = np.array(scs).reshape(-1, config.n_rings, config.n_sectors)
         self._d2 = np.array(d2s).reshape(len(scs), config.d2_bins)
         self._keys = np.array(keys).reshape(len(scs), config.n_rings * config.n_key_coefficients)
+        pano_index = {pid: i for i, pid in enumerate(self._pano_ids)}
+        self._both_scan = [i for i, pid in enumerate(self._scan_ids) if pid in pano_index]
+        self._both_pano = [pano_index[self._scan_ids[i]] for i in self._both_scan]
+        self._both = bool(self._both_scan)
         self._pano_sigs = np.array(panos).reshape(len(panos), config.strip_rows * config.n_coefficients)
 
     def candidates(self, query: Query, k: int = 5, *, exclude: Callable[[str], bool] | None = None) -> tuple[PlaceCandidate, ...]:
@@ -339,12 +345,38 @@ class PlaceRecognizer:
         Raises :class:`InputError` when the query has neither a scan/cloud nor a panorama to match.
         """
         k = positive_int("k", k)
-        if query.scan is not None or query.cloud is not None:
+        has_scan = query.scan is not None or query.cloud is not None
+        if has_scan and query.panorama is not None and self.config.rank_by == "shape_distribution" and self._both:
+            return self._by_both(query, k, exclude)
+        if has_scan:
             pts = query.scan.points_m if query.scan is not None else query.cloud.points_m[:, :2]  # type: ignore[union-attr]
             return self._by_scan(pts, k, exclude)
         if query.panorama is not None:
             return self._by_panorama(query.panorama, k, exclude)
         raise InputError(f"query {query.id!r} has no scan, cloud or panorama: nothing to recognize a place from")
+
+    def _by_both(self, query: Query, k: int, exclude: Callable[[str], bool] | None) -> tuple[PlaceCandidate, ...]:
+        """Places holding a scan and a panorama, ranked by the sum of the two signature distances, each divided by
+        its median over the places (so that neither scale dominates)."""
+        cfg = self.config
+        ids = [self._scan_ids[i] for i in self._both_scan]
+        allowed = np.flatnonzero(self._allowed(ids, exclude))
+        if allowed.size == 0:
+            return ()
+        pts = query.scan.points_m if query.scan is not None else query.cloud.points_m[:, :2]  # type: ignore[union-attr]
+        si, pi = np.asarray(self._both_scan)[allowed], np.asarray(self._both_pano)[allowed]
+        d_scan = np.linalg.norm(self._d2[si] - shape_distribution(pts, cfg)[None], axis=1)
+        d_pano = np.linalg.norm(self._pano_sigs[pi] - panorama_signature(query.panorama, cfg)[None], axis=1)  # type: ignore[arg-type]
+        score = d_scan / max(float(np.median(d_scan)), 1e-12) + d_pano / max(float(np.median(d_pano)), 1e-12)
+        top = np.argsort(score, kind="stable")[:k]
+        _, shift = _distances(scan_context(pts, cfg), self._scs[si[top]])
+        w = 2.0 * math.pi / cfg.n_sectors
+        return tuple(
+            PlaceCandidate(
+                ids[allowed[j]], float(score[j]), "shape_distribution+panorama", float(math.remainder(int(m) * w, 2 * math.pi))
+            )
+            for j, m in zip(top, shift, strict=True)
+        )
 
     def _allowed(self, ids: Sequence[str], exclude: Callable[[str], bool] | None) -> np.ndarray:
         return np.array([exclude is None or not exclude(i) for i in ids], dtype=bool)

@@ -95,3 +95,20 @@ def test_simulated_apartment_recall_at_5_on_a_held_out_seed() -> None:
     # measured on seeds 100/101 with 200 queries each: recall@5 0.79 / 0.77, recall@1 0.67 / 0.63
     assert r.recall_at(5) >= 0.65
     assert r.recall_at(1) >= 0.5
+
+
+def test_a_query_with_scan_and_panorama_is_ranked_by_both_signatures() -> None:
+    rng = np.random.default_rng(3)
+    rooms = {"small": (4.0, 3.0), "long": (9.0, 2.5), "square": (6.0, 6.0)}
+    images = {k: rng.uniform(0, 255, (32, 128, 3)).astype(np.uint8) for k in rooms}
+    places = [
+        Place(k, Reference(scan=Scan(_room(Pose2(1.5, 1.0, 0.0), w, h)), panorama=Panorama(images[k])), Pose2(10.0 * i, 0, 0))
+        for i, (k, (w, h)) in enumerate(rooms.items())
+    ]
+    rec = PlaceRecognizer(PlaceMap(places))
+    # the scan looks like "square", the panorama (turned by 32 columns) is "long"'s: the panorama's distance is
+    # zero, so "long" wins on the sum
+    q = Query(scan=Scan(_room(Pose2(1.5, 1.0, 0.0), 6.2, 5.8)), panorama=Panorama(np.roll(images["long"], 32, axis=1)), id="q")
+    top = rec.candidates(q, k=3)
+    assert top[0].signature == "shape_distribution+panorama"
+    assert top[0].place_id == "long"
