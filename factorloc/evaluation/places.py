@@ -260,17 +260,18 @@ def _free_segment(world: object, a: np.ndarray, b: np.ndarray, clearance_m: floa
 
 def _leg(world: object, start: Pose2, length_m: float, rng: np.random.Generator, clearance_m: float) -> np.ndarray:
     """A collision-free waypoint path of at least ``length_m`` from ``start`` (N×3, ≤ 5 cm apart)."""
-    from factorloc.sim.motion import sample_free_pose, waypoint_trajectory
+    from factorloc.sim.motion import waypoint_trajectory
 
     wps: list = [start]
     here, total = start.translation, 0.0
     while total < length_m:
-        for _ in range(500):
-            p = sample_free_pose(world, rng, clearance_m).translation  # type: ignore[arg-type]
-            if 0.5 < np.linalg.norm(p - here) < 4.0 and _free_segment(world, here, p, clearance_m):
+        for _ in range(4000):
+            r, a = rng.uniform(0.5, 4.0), rng.uniform(-math.pi, math.pi)
+            p = here + r * np.array([math.cos(a), math.sin(a)])
+            if bool(world.is_free(p[None], clearance_m)[0]) and _free_segment(world, here, p, clearance_m):  # type: ignore[attr-defined]
                 break
         else:
-            raise InputError("no reachable waypoint found from the current position")
+            raise InputError(f"no reachable waypoint within 4 m of {here.tolist()} after 4000 draws")
         total += float(np.linalg.norm(p - here))
         wps.append((float(p[0]), float(p[1])))
         here = p

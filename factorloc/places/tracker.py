@@ -88,6 +88,10 @@ class TrackerConfig:
         Place recognition for (re-)localization.
     relocalize_k
         How many recognized places the hierarchy tries when re-localizing.
+    relocalize_min_places
+        A re-localization is accepted only when this many recognized places give factors that the consistency gate
+        keeps together (one place alone can be a look-alike: measured on seed 1005, a start-up on one wrong place
+        5 m off); fewer leaves the tracker ``LOST`` until a later query.
     relocalize_sigma_m, relocalize_sigma_rad
         σ of the seed the hierarchy gets at a recognized place (the place's position; heading from the signature).
     gate_probability
@@ -112,6 +116,7 @@ class TrackerConfig:
     choice: ChoiceConfig = field(default_factory=ChoiceConfig)
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
     relocalize_k: int = 5
+    relocalize_min_places: int = 2
     relocalize_sigma_m: float = 0.5
     relocalize_sigma_rad: float = 0.3
     gate_probability: float = 0.999
@@ -128,7 +133,7 @@ class TrackerConfig:
             raise InputError(f"TrackerConfig.localization must be a factorloc.Config, got {type(self.localization).__name__}")
         if not 0.0 < self.gate_probability < 1.0:
             raise InputError(f"TrackerConfig.gate_probability must be in (0, 1), got {self.gate_probability!r}")
-        for name in ("relocalize_k", "kidnap_after"):
+        for name in ("relocalize_k", "kidnap_after", "relocalize_min_places"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InputError(f"TrackerConfig.{name} must be an integer >= 1, got {v!r}")
@@ -386,7 +391,7 @@ class Tracker:
     ) -> TrackResult:
         cfg = self.config
         found = self._recognize(query)
-        if found is not None and found.places_used:
+        if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
             if prediction is not None:
                 pred, pred_cov, delta, Q = prediction
@@ -413,7 +418,7 @@ class Tracker:
                 "re-localized by place recognition",
                 False,
                 note=why,
-                failure="no recognized place gave a consistent pose: lost",
+                failure=f"fewer than {cfg.relocalize_min_places} recognized places gave a consistent pose: lost",
             )
         )
         if prediction is None:  # nothing to dead-reckon from
