@@ -26,7 +26,7 @@ import json
 import time
 from pathlib import Path
 
-from factorloc.evaluation.places import simulated_place_map, simulated_track, track_figures
+from factorloc.evaluation.places import choice_recall, simulated_place_map, simulated_track, track_figures
 from factorloc.places import Tracker, TrackerConfig
 
 
@@ -44,7 +44,7 @@ def main() -> None:
     place_map = simulated_place_map(world, 1.0, seed=0)
     rows = []
     head = f"{'seed':>4} {'n':>4} {'RMSE cm':>8} {'RMSE deg':>8} {'all cm':>7} {'wrong':>6} {'flagged':>7}"
-    head += f" {'kid':>4} {'rec3':>4} {'med ms':>7}"
+    head += f" {'kid':>4} {'rec3':>4} {'med ms':>7} {'choice':>7}"
     print(head)
     for seed in args.seeds:
         t0 = time.perf_counter()
@@ -54,11 +54,15 @@ def main() -> None:
         results = [tracker.update(q.query) for q in sc.queries]
         cpu = (time.process_time() - c0) / len(sc.queries)
         f = track_figures(sc, results)
-        rows.append({"seed": 1000 + seed, **f.to_dict(), "cpu_s_per_query": cpu, "seconds": time.perf_counter() - t0})
+        n_choice, choice = choice_recall(sc, results, place_map)
+        rows.append(
+            {"seed": 1000 + seed, **f.to_dict(), "choice_queries": n_choice, "choice_recall": choice, "cpu_s_per_query": cpu}
+            | {"seconds": time.perf_counter() - t0}
+        )
         print(
             f"{1000 + seed:>4} {f.queries:>4} {100 * f.rmse_position_m:>8.2f} {f.rmse_heading_deg:>8.2f} "
             f"{100 * f.rmse_position_all_m:>7.1f} {100 * f.confidently_wrong:>5.1f}% {100 * f.flagged:>6.1f}% "
-            f"{f.kidnaps:>4} {f.recovered_within_3:>4} {1000 * f.median_seconds:>7.1f}",
+            f"{f.kidnaps:>4} {f.recovered_within_3:>4} {1000 * f.median_seconds:>7.1f} {100 * choice:>6.1f}%",
             flush=True,
         )
         if args.mcl:

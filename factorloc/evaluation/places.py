@@ -32,6 +32,7 @@ __all__ = [
     "RecallResult",
     "SimulatedRecall",
     "TrackFigures",
+    "choice_recall",
     "correct_window_s",
     "places_along_log",
     "recognition_recall",
@@ -413,3 +414,28 @@ def track_figures(scenario: object, results: Sequence[object]) -> TrackFigures:
         int(recovered),
         float(np.median(secs)),
     )
+
+
+def choice_recall(scenario: object, results: Sequence[object], place_map: PlaceMap, config: object = None) -> tuple[int, float]:
+    """Place choice with a reliable hypothesis: among the queries whose true view overlaps a place (the true
+    position within that place's :attr:`~factorloc.places.Place.footprint_m`) and that the tracker predicted from
+    the previous pose, the share for which :func:`~factorloc.places.places_in_view` around the prediction (with the
+    result's covariance) chose at least one such place. Returns (queries counted, share)."""
+    from factorloc.places import ChoiceConfig, places_in_view
+
+    cfg = config or ChoiceConfig()
+    pos = place_map.positions_m()
+    reach = np.array([p.footprint_m for p in place_map])
+    hits, n = 0, 0
+    for q, r in zip(scenario.queries, results, strict=True):  # type: ignore[attr-defined]
+        if r.predicted is None or "kidnapped" in q.faults:  # type: ignore[attr-defined]
+            continue
+        overlapping = {
+            pid for pid, d, rr in zip(place_map.ids, np.hypot(*(pos - q.truth.translation).T), reach, strict=True) if d <= rr
+        }
+        if not overlapping:
+            continue
+        n += 1
+        chosen = {pid for pid, _ in places_in_view(place_map, r.predicted, r.covariance, cfg)}  # type: ignore[attr-defined]
+        hits += bool(chosen & overlapping)
+    return n, (hits / n if n else math.nan)

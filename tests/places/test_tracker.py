@@ -71,3 +71,12 @@ def test_tracker_validates_its_inputs(drive) -> None:
         TrackerConfig(gate_probability=1.0)
     with pytest.raises(InputError, match="Query"):
         Tracker(place_map).update("q")  # type: ignore[arg-type]
+
+
+def test_places_chosen_around_the_prediction_overlap_the_query(drive) -> None:
+    from factorloc.evaluation.places import choice_recall
+
+    place_map, scenario, results, _ = drive
+    n, share = choice_recall(scenario, results, place_map)
+    assert n >= 50
+    assert share >= 0.95  # seeds 1001-1008 of bench_track.py: see docs/places.md
