@@ -15,6 +15,7 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --folds            # leave-one-log-out D2 radius
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 10 --every 20  # after ICP verification of the top 10
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=[201, 202, 203])
     ap.add_argument("--modality", choices=["scan", "panorama", "both"], default="scan", help="what the simulated queries sense")
     ap.add_argument("--queries", type=int, default=200)
+    ap.add_argument("--verify", type=int, default=0, help="recall after ICP verification of the top N (hloc pattern)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     cfg = RecognitionConfig(
@@ -64,6 +66,9 @@ def main() -> None:
         return
     if args.sim:
         simulated(args, cfg)
+        return
+    if args.verify:
+        verified(args, cfg)
         return
     rows = []
     print(f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6}")
@@ -81,6 +86,23 @@ def main() -> None:
         )
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
+
+
+def verified(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """recall after the hierarchy verifies the top ``--verify`` places (every ``--every``-th relation)."""
+    from factorloc.evaluation.places import verified_recall
+
+    print(f"{'log':<10} {'loops':>6} {'verified R@1':>12} {'verified R@5':>12} {'s':>6}")
+    for name in args.logs:
+        t0 = time.perf_counter()
+        log = read_laser_log(args.data / f"{name}.sort.bag")
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        r = verified_recall(log, rel, cfg, n_candidates=args.verify, name=name)
+        print(
+            f"{name:<10} {r.ranks.size:>6} {100 * r.recall_at(1):>11.1f}% {100 * r.recall_at(min(5, r.max_k)):>11.1f}% "
+            f"{time.perf_counter() - t0:>6.1f}",
+            flush=True,
+        )
 
 
 def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
