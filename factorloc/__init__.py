@@ -32,6 +32,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from factorloc.config import Config
     from factorloc.fusion import FusionStrategy, GraphFusion, ProductFusion
     from factorloc.pipeline import Localizer, fuse, localize
+    from factorloc.places import Place, PlaceMap
 
 __version__ = "0.1.0"
 
@@ -42,6 +43,8 @@ _LAZY = {
     "GraphFusion": "factorloc.fusion",
     "ProductFusion": "factorloc.fusion",
     "Localizer": "factorloc.pipeline",
+    "Place": "factorloc.places",
+    "PlaceMap": "factorloc.places",
     "fuse": "factorloc.pipeline",
     "localize": "factorloc.pipeline",
 }
@@ -77,6 +80,8 @@ __all__ = [
     "Odometry",
     "OdometryModel",
     "Panorama",
+    "Place",
+    "PlaceMap",
     "PointCloud",
     "Pose2",
     "ProductFusion",

@@ -21,7 +21,7 @@ import typer
 from rich.console import Console
 
 import factorloc
-from factorloc import cli_convert, cli_map, cli_sweep, jit
+from factorloc import cli_convert, cli_map, cli_sweep, cli_track, jit
 from factorloc.cli_parallel import SchedulerOption, WorkersOption, batch_executor, failure_printer
 from factorloc.cli_render import (
     evaluation_steps_table,
@@ -435,6 +435,7 @@ def demo(
 cli_convert.register(app)
 cli_map.register(app)
 cli_sweep.register(app)
+cli_track.register(app)
 
 if __name__ == "__main__":  # pragma: no cover
     app()

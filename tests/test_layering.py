@@ -25,6 +25,8 @@ CORE = [
     "factorloc.gating",
     "factorloc.fusion",
     "factorloc.pipeline",
+    "factorloc.places",
+    "factorloc.ros",
 ]
 OUTSIDE_THE_CORE = ("factorloc.sim", "factorloc.baselines", "factorloc.evaluation", "factorloc.cli", "factorloc.benchmarking")
 

@@ -1,0 +1,153 @@
+"""Place recognition on the real laser logs: recall@1 and recall@5 of Scan Context on every loop relation.
+
+Protocol (issue #18; :mod:`factorloc.evaluation.places`): a place every metre along each log's odometry; for every
+loop relation (t1, t2) the scan at t2 is the query, the places within 15 s of t2 are left out, a correct place is
+built from the scan at t1 or a neighbour in time whose odometry lies within 1 m of t1's. No parameter is fitted
+on the logs by default: the signature's defaults (:class:`~factorloc.places.RecognitionConfig`) are the same for all
+three. ``--folds`` fits the one parameter that was chosen by looking at data, the D2 radius ``d2_max_range_m``, leave
+one log out: for each log, the radius of the grid with the best mean recall@5 on the two others, reported on it.
+
+Usage::
+
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py                 # all three logs, every loop relation
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --every 10      # every 10th relation (quick)
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --json out.json
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --folds            # leave-one-log-out D2 radius
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 10 --every 20  # after ICP verification of the top 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from factorloc.datasets.rosbag import read_laser_log
+from factorloc.evaluation.folds import LOGS
+from factorloc.evaluation.places import recognition_recall
+from factorloc.evaluation.relations import read_relations
+from factorloc.places import RecognitionConfig
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--logs", nargs="*", default=list(LOGS))
+    ap.add_argument("--every", type=int, default=1, help="every n-th relation")
+    ap.add_argument("--max-range", type=float, default=RecognitionConfig().max_range_m)
+    ap.add_argument("--rings", type=int, default=RecognitionConfig().n_rings)
+    ap.add_argument("--sectors", type=int, default=RecognitionConfig().n_sectors)
+    ap.add_argument("--candidates", type=int, default=RecognitionConfig().n_candidates)
+    ap.add_argument("--d2-range", type=float, default=RecognitionConfig().d2_max_range_m)
+    ap.add_argument("--folds", action="store_true", help="fit the D2 radius leave-one-log-out over --grid")
+    ap.add_argument("--grid", type=float, nargs="*", default=[8.0, 15.0, 25.0])
+    ap.add_argument("--sim", action="store_true", help="recall on the simulated apartment instead (--seeds, --queries)")
+    ap.add_argument("--seeds", type=int, nargs="*", default=[201, 202, 203])
+    ap.add_argument("--modality", choices=["scan", "panorama", "both"], default="scan", help="what the simulated queries sense")
+    ap.add_argument("--queries", type=int, default=200)
+    ap.add_argument("--verify", type=int, default=0, help="recall after ICP verification of the top N (hloc pattern)")
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args()
+    cfg = RecognitionConfig(
+        n_rings=args.rings,
+        n_sectors=args.sectors,
+        max_range_m=args.max_range,
+        n_candidates=args.candidates,
+        d2_max_range_m=args.d2_range,
+    )
+    if args.folds:
+        folds(args, cfg)
+        return
+    if args.sim:
+        simulated(args, cfg)
+        return
+    if args.verify:
+        verified(args, cfg)
+        return
+    rows = []
+    print(f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6}")
+    for name in args.logs:
+        t0 = time.perf_counter()
+        log = read_laser_log(args.data / f"{name}.sort.bag")
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        res = recognition_recall(log, rel, cfg, name=name)
+        row = res.to_dict() | {"seconds": time.perf_counter() - t0}
+        rows.append(row)
+        print(
+            f"{name:<10} {row['places']:>6} {row['loop_relations']:>6} {100 * row['recall_at_1']:>5.1f}% "
+            f"{100 * row['recall_at_5']:>5.1f}% {row['facing_relations']:>6} {100 * row['recall_at_1_facing']:>5.1f}% "
+            f"{100 * row['recall_at_5_facing']:>5.1f}% {row['seconds']:>6.1f}"
+        )
+    if args.json:
+        args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
+
+
+def verified(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """recall after the hierarchy verifies the top ``--verify`` places (every ``--every``-th relation)."""
+    from factorloc.evaluation.places import verified_recall
+
+    print(f"{'log':<10} {'loops':>6} {'verified R@1':>12} {'verified R@5':>12} {'s':>6}")
+    for name in args.logs:
+        t0 = time.perf_counter()
+        log = read_laser_log(args.data / f"{name}.sort.bag")
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        r = verified_recall(log, rel, cfg, n_candidates=args.verify, name=name)
+        print(
+            f"{name:<10} {r.ranks.size:>6} {100 * r.recall_at(1):>11.1f}% {100 * r.recall_at(min(5, r.max_k)):>11.1f}% "
+            f"{time.perf_counter() - t0:>6.1f}",
+            flush=True,
+        )
+
+
+def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """recall@1/@5 on random poses of the simulated apartment (a place every metre of a grid; 360° scans)."""
+    from factorloc.evaluation.places import simulated_place_map, simulated_recall
+    from factorloc.sim import apartment
+
+    world = apartment()
+    width = 0 if args.modality == "scan" else 512
+    place_map = simulated_place_map(world, 1.0, seed=0, panorama_width_px=width)
+    print(f"{args.modality}: {'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6}")
+    for seed in args.seeds:
+        r = simulated_recall(
+            world, place_map, args.queries, seed, cfg, panorama_width_px=width, with_scan=args.modality == "both"
+        )
+        print(f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}%")
+
+
+def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
+    """Leave one log out over the D2 radius grid: fit on two logs, report on the third."""
+    table: dict[str, dict[float, dict]] = {}
+    for name in args.logs:
+        log = read_laser_log(args.data / f"{name}.sort.bag")
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        table[name] = {}
+        for r in args.grid:
+            table[name][r] = recognition_recall(log, rel, replace(base, d2_max_range_m=r), name=name).to_dict()
+            print(
+                f"  {name:<10} d2 radius {r:>5.1f} m: R@1 {100 * table[name][r]['recall_at_1']:5.1f}%  "
+                f"R@5 {100 * table[name][r]['recall_at_5']:5.1f}%",
+                flush=True,
+            )
+    print(f"{'held out':<10} {'fitted radius':>13} {'R@1':>6} {'R@5':>6}")
+    out = []
+    for held in args.logs:
+        train = [n for n in args.logs if n != held]
+        best = max(args.grid, key=lambda r: (sum(table[n][r]["recall_at_5"] for n in train), -r))
+        row = table[held][best]
+        out.append({"held_out": held, "d2_max_range_m": best, **row})
+        print(f"{held:<10} {best:>13.1f} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
+    if args.json:
+        args.json.write_text(
+            json.dumps({"folds": out, "grid": {n: {str(r): v for r, v in t.items()} for n, t in table.items()}}, indent=2)
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,501 @@
+"""Place recognition on a real laser log: a map of places along the log, recall@k on its loop relations.
+
+The protocol (issue #18): the map holds a place every ``spacing_m`` metres of the log's odometry path (the first
+scan at which the path length passes each multiple), placed at its odometry pose. For every *loop* relation
+``(t1, t2)`` of the ground truth (odometry path between them ≥ ``local_threshold_m``, the boundary of
+:mod:`factorloc.evaluation.relations`), the scan at ``t2`` is the query; the places taken within
+``exclude_window_s / 2`` of ``t2`` are left out (the robot's own recent past); a retrieved place is *correct*
+when it was built from a scan of the run of scans around ``t1`` whose odometry stays within ``neighbourhood_m``
+of ``t1``'s (the scan at ``t1`` and its neighbours in time). recall@k is the share of loop relations with a
+correct place among the top k.
+
+A relation none of whose correct places is in the map (a run around ``t1`` shorter than the spacing, or all
+within the excluded window) still counts, as a miss: the map is built the same way for every log.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from factorloc.datasets.rosbag import LaserLog
+from factorloc.errors import InputError
+from factorloc.evaluation.relations import Relations
+from factorloc.geometry import Pose2
+from factorloc.places import Place, PlaceMap, PlaceRecognizer, RecognitionConfig
+from factorloc.types import Odometry, Query, Reference
+
+__all__ = [
+    "RecallResult",
+    "SimulatedRecall",
+    "TrackFigures",
+    "choice_recall",
+    "correct_window_s",
+    "places_along_log",
+    "recognition_recall",
+    "simulated_place_map",
+    "simulated_recall",
+    "simulated_track",
+    "track_figures",
+    "verified_recall",
+]
+
+
+def places_along_log(log: LaserLog, spacing_m: float = 1.0) -> tuple[PlaceMap, np.ndarray]:
+    """A place every ``spacing_m`` of odometry path: the map and the (N,) times of the places' scans.
+
+    Place ``i`` has id ``p<i>`` (zero-padded), the scan at its time as reference, its odometry pose as pose.
+    """
+    if not (isinstance(spacing_m, (int, float)) and spacing_m > 0):
+        raise InputError(f"spacing_m must be > 0, got {spacing_m!r}")
+    stamps = log.scans.stamps_s
+    inside = (stamps >= log.odometry.stamps_s[0]) & (stamps <= log.odometry.stamps_s[-1])
+    idx = np.flatnonzero(inside)
+    path = np.asarray(log.odometry.path_length_m(stamps[idx]))
+    chosen, next_mark = [], 0.0
+    for j, d in zip(idx, path, strict=True):
+        if d >= next_mark and len(log.scans.scans[j]) > 0:
+            chosen.append(int(j))
+            next_mark = (math.floor(d / spacing_m) + 1) * spacing_m
+    width = len(str(len(chosen)))
+    places = []
+    for n, j in enumerate(chosen):
+        T = log.odometry.pose_at(float(stamps[j]))
+        places.append(
+            Place(f"p{n:0{width}d}", Reference(scan=log.scans.scans[j], T_world_reference=T, name=f"t={stamps[j]:.3f}"), T)
+        )
+    return PlaceMap(places), stamps[chosen]
+
+
+def correct_window_s(log: LaserLog, t1_s: float, neighbourhood_m: float = 1.0, tolerance_s: float = 2e-3) -> tuple[float, float]:
+    """The time span of the run of scans around ``t1_s`` whose odometry lies within ``neighbourhood_m`` of t1's."""
+    stamps = log.scans.stamps_s
+    i = log.scans.index_at(t1_s, tolerance_s)
+    p1 = log.odometry.pose_at(float(stamps[i])).translation
+    lo = hi = i
+
+    def near(j: int) -> bool:
+        t = float(stamps[j])
+        if not (log.odometry.stamps_s[0] <= t <= log.odometry.stamps_s[-1]):
+            return False
+        return bool(np.linalg.norm(log.odometry.pose_at(t).translation - p1) <= neighbourhood_m)
+
+    while lo > 0 and near(lo - 1):
+        lo -= 1
+    while hi < len(stamps) - 1 and near(hi + 1):
+        hi += 1
+    return float(stamps[lo]), float(stamps[hi])
+
+
+@dataclass(frozen=True)
+class RecallResult:
+    """Place recognition on one log's loop relations.
+
+    ``ranks[i]`` is the 1-based rank of the first correct place retrieved for loop relation ``i`` (``inf``: none
+    among the top ``max_k``); ``heading_change_rad[i]`` the relation's |Δθ| (a 180° scanner sees little of a
+    place it comes back to facing the other way); ``places`` the size of the map.
+    """
+
+    log: str
+    places: int
+    ranks: np.ndarray
+    heading_change_rad: np.ndarray
+    max_k: int
+
+    def recall_at(self, k: int) -> float:
+        if not 1 <= k <= self.max_k:
+            raise InputError(f"k must be in [1, {self.max_k}], got {k!r}")
+        return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+    def recall_at_facing(self, k: int, max_heading_change_rad: float = math.pi / 2) -> float:
+        """recall@k over the relations whose heading changed by less than ``max_heading_change_rad``."""
+        sel = self.heading_change_rad < max_heading_change_rad
+        return float(np.mean(self.ranks[sel] <= k)) if sel.any() else math.nan
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "log": self.log,
+            "places": self.places,
+            "loop_relations": int(self.ranks.size),
+            "recall_at_1": self.recall_at(1),
+            "recall_at_5": self.recall_at(min(5, self.max_k)),
+            "facing_relations": int(np.sum(self.heading_change_rad < math.pi / 2)),
+            "recall_at_1_facing": self.recall_at_facing(1),
+            "recall_at_5_facing": self.recall_at_facing(min(5, self.max_k)),
+        }
+
+
+def recognition_recall(
+    log: LaserLog,
+    relations: Relations,
+    config: RecognitionConfig = RecognitionConfig(),
+    *,
+    name: str = "",
+    spacing_m: float = 1.0,
+    neighbourhood_m: float = 1.0,
+    exclude_window_s: float = 30.0,
+    local_threshold_m: float = 5.0,
+    max_k: int = 5,
+    tolerance_s: float = 2e-3,
+    indices: Sequence[int] | None = None,
+) -> RecallResult:
+    """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
+
+    ``indices`` restricts to those relations (a subset for tests); only loop relations are scored.
+    """
+    place_map, place_t = places_along_log(log, spacing_m)
+    recognizer = PlaceRecognizer(place_map, config)
+    time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
+    ranks, dth = [], []
+    for i in range(len(relations)) if indices is None else indices:
+        t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
+        if log.odometry.distance_between(t1, t2)[0] < local_threshold_m:
+            continue
+        lo, hi = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
+        query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
+        cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: abs(time_of[pid] - t2) <= exclude_window_s / 2)
+        rank = math.inf
+        for r, c in enumerate(cands, start=1):
+            if lo <= time_of[c.place_id] <= hi:
+                rank = r
+                break
+        ranks.append(rank)
+        dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
+    return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), max_k)
+
+
+# --------------------------------------------------------------------------
+# The simulator
+# --------------------------------------------------------------------------
+def simulated_place_map(
+    world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
+) -> PlaceMap:
+    """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
+    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading.
+
+    With ``panorama_width_px`` > 0 each place also holds a rendered 360° panorama of that width
+    (:func:`factorloc.sim.render_panorama`, camera at 1 m). Each place's covariance is the simulator's per-scan
+    sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
+    ``SCAN_POSE_SIGMA_RAD``): the scan was taken from a pose that far from the one the map states."""
+    from factorloc.sim import render_panorama, render_scan
+    from factorloc.sim.laser import SCAN_POSE_SIGMA_M, SCAN_POSE_SIGMA_RAD
+
+    cov = np.diag([SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_RAD**2])
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = world.bounds_xy  # type: ignore[attr-defined]
+    xs = np.arange(x0 + spacing_m / 2, x1, spacing_m)
+    ys = np.arange(y0 + spacing_m / 2, y1, spacing_m)
+    grid = np.array([(x, y) for y in ys for x in xs])
+    free = grid[world.is_free(grid, clearance_m)]  # type: ignore[attr-defined]
+    places = []
+    for n, (x, y) in enumerate(free):
+        T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
+        scan = render_scan(world, T, rng=rng)  # type: ignore[arg-type]
+        pano = render_panorama(world, T, width_px=panorama_width_px) if panorama_width_px > 0 else None  # type: ignore[arg-type]
+        places.append(Place(f"g{n:03d}", Reference(panorama=pano, scan=scan, T_world_reference=T), T, cov))
+    return PlaceMap(places)
+
+
+@dataclass(frozen=True)
+class SimulatedRecall:
+    """Place recognition on simulated queries: ``ranks`` of the first correct place (``inf``: not in the top
+    ``max_k``); a place is correct when it lies within ``neighbourhood_m`` of the query's true position."""
+
+    ranks: np.ndarray
+    max_k: int
+    seed: int
+
+    def recall_at(self, k: int) -> float:
+        return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+
+def simulated_recall(
+    world: object,
+    place_map: PlaceMap,
+    n_queries: int,
+    seed: int,
+    config: RecognitionConfig = RecognitionConfig(),
+    *,
+    neighbourhood_m: float = 1.0,
+    max_k: int = 5,
+    clearance_m: float = 0.3,
+    panorama_width_px: int = 0,
+    with_scan: bool = False,
+) -> SimulatedRecall:
+    """recall@k of :class:`~factorloc.places.PlaceRecognizer` on ``n_queries`` random free poses (random
+    headings) of a simulated world, each sensed by a 360° laser scan — or, with ``panorama_width_px`` > 0, by a
+    rendered panorama (the places must hold panoramas), and a scan too with ``with_scan``; reproducible from
+    ``seed``."""
+    from factorloc.sim import render_panorama, render_scan
+    from factorloc.sim.motion import sample_free_pose
+
+    rng = np.random.default_rng(seed)
+    recognizer = PlaceRecognizer(place_map, config)
+    pos = place_map.positions_m()
+    ranks = []
+    for i in range(n_queries):
+        T = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+        if panorama_width_px > 0:
+            pano = render_panorama(world, T, width_px=panorama_width_px)  # type: ignore[arg-type]
+            scan = render_scan(world, T, rng=rng) if with_scan else None  # type: ignore[arg-type]
+            q = Query(panorama=pano, scan=scan, id=f"q{i}")
+        else:
+            q = Query(scan=render_scan(world, T, rng=rng), id=f"q{i}")  # type: ignore[arg-type]
+        ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
+        rank = math.inf
+        for r, c in enumerate(recognizer.candidates(q, max_k), start=1):
+            if c.place_id in ok:
+                rank = r
+                break
+        ranks.append(rank)
+    return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)
+
+
+def _free_segment(world: object, a: np.ndarray, b: np.ndarray, clearance_m: float) -> bool:
+    n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.05)) + 1)
+    pts = a[None] + np.linspace(0.0, 1.0, n)[:, None] * (b - a)[None]
+    return bool(np.all(world.is_free(pts, clearance_m)))  # type: ignore[attr-defined]
+
+
+def _leg(world: object, start: Pose2, length_m: float, rng: np.random.Generator, clearance_m: float) -> np.ndarray:
+    """A collision-free waypoint path of at least ``length_m`` from ``start`` (N×3, ≤ 5 cm apart)."""
+    from factorloc.sim.motion import waypoint_trajectory
+
+    wps: list = [start]
+    here, total = start.translation, 0.0
+    while total < length_m:
+        for _ in range(4000):
+            r, a = rng.uniform(0.5, 4.0), rng.uniform(-math.pi, math.pi)
+            p = here + r * np.array([math.cos(a), math.sin(a)])
+            if bool(world.is_free(p[None], clearance_m)[0]) and _free_segment(world, here, p, clearance_m):  # type: ignore[attr-defined]
+                break
+        else:
+            raise InputError(f"no reachable waypoint within 4 m of {here.tolist()} after 4000 draws")
+        total += float(np.linalg.norm(p - here))
+        wps.append((float(p[0]), float(p[1])))
+        here = p
+    return waypoint_trajectory(wps, step_m=0.05, step_rad=0.05)
+
+
+def simulated_track(
+    world: object,
+    place_map: PlaceMap,
+    n_queries: int,
+    seed: int,
+    *,
+    kidnaps: int = 0,
+    spacing_m: float = 0.25,
+    clearance_m: float = 0.35,
+) -> object:
+    """A robot driving through a simulated world, a 360° laser scan every ``spacing_m`` of travel (turns count
+    0.3 m/rad): a :class:`~factorloc.datasets.Scenario` whose references are ``place_map``'s places and whose
+    queries, in time order, carry one continuous odometry run (:func:`factorloc.sim.simulate_odometry`'s drift,
+    restarted from the odometry's last pose after a kidnapping so that the odometry does not see it) and the truth.
+
+    ``kidnaps`` times the robot is carried to a random free pose between two queries (tag ``kidnapped`` on the
+    first query after it). Each query names its nearest place as ``reference_id``. Reproducible from ``seed``.
+    """
+    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference
+    from factorloc.sim import render_scan
+    from factorloc.sim.motion import sample_free_pose, simulate_odometry
+
+    rng = np.random.default_rng(seed)
+    if n_queries < 2:
+        raise InputError(f"n_queries must be >= 2, got {n_queries!r}")
+    cuts = sorted(rng.choice(np.arange(10, n_queries - 5), size=kidnaps, replace=False).tolist()) if kidnaps else []
+    bounds = [0, *cuts, n_queries]
+    pos = place_map.positions_m()
+    queries = []
+    odo_end: Pose2 | None = None
+    start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+    for s, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
+        n = b - a
+        path = _leg(world, start, spacing_m * n + 1.0, rng, clearance_m)
+        steps = np.hypot(np.diff(path[:, 0]), np.diff(path[:, 1])) + 0.3 * np.abs(np.diff(np.unwrap(path[:, 2])))
+        arc = np.concatenate([[0.0], np.cumsum(steps)])
+        idx = np.minimum(np.searchsorted(arc, spacing_m * np.arange(n)), len(path) - 1)
+        run = simulate_odometry(path[: idx[-1] + 1], rng)
+        T0 = Pose2.from_array(run.poses[0])
+        for j, i in enumerate(idx):
+            truth = Pose2.from_array(path[i])
+            rel = T0.between(Pose2.from_array(run.poses[i]))
+            T_odo = rel if odo_end is None else odo_end.compose(rel)
+            o = run.odometry(int(i))
+            k = a + j
+            q = Query(
+                scan=render_scan(world, truth, rng=rng),  # type: ignore[arg-type]
+                odometry=Odometry(T_odo, o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad),
+                id=f"q{k:04d}",
+            )
+            nearest = place_map.ids[int(np.argmin(np.hypot(*(pos - truth.translation).T)))]
+            faults = ("kidnapped",) if (s > 0 and j == 0) else ()
+            queries.append(ScenarioQuery(q, float(k), truth, faults, nearest))
+        odo_end = queries[-1].query.odometry.T_world_robot  # type: ignore[union-attr]
+        start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
+    refs = tuple(ScenarioReference(p.id, p.reference) for p in place_map)
+    return Scenario(f"track-{seed}", refs, tuple(queries), seed=seed, metadata={"kidnaps": kidnaps, "spacing_m": spacing_m})
+
+
+# --------------------------------------------------------------------------
+# Tracking figures
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TrackFigures:
+    """How a tracker did on a scenario with ground truth.
+
+    ``rmse_position_m`` / ``rmse_heading_deg``: over the results the tracker vouches for (not flagged: see
+    :attr:`~factorloc.places.TrackResult.flagged`); ``rmse_position_all_m``: over every result that has a pose.
+    ``confidently_wrong``: share of the unflagged results whose position error lies beyond the 3σ ellipse of their
+    covariance (2-dof χ² 11.83) or whose heading error exceeds 3σθ. ``flagged``: share flagged. ``kidnaps`` and
+    ``recovered_within_3``: kidnappings (queries tagged ``kidnapped``) and those after which a ``relocalized``
+    result within 10 cm and 1° of the truth came within 3 queries (the kidnapped query and the two after it).
+    ``median_seconds``: median wall time of an update.
+    """
+
+    queries: int
+    rmse_position_m: float
+    rmse_heading_deg: float
+    rmse_position_all_m: float
+    confidently_wrong: float
+    flagged: float
+    kidnaps: int
+    recovered_within_3: int
+    median_seconds: float
+
+    def to_dict(self) -> dict[str, float]:
+        return dict(self.__dict__)
+
+
+def track_figures(scenario: object, results: Sequence[object]) -> TrackFigures:
+    """The :class:`TrackFigures` of ``results`` (one :class:`~factorloc.places.TrackResult` per query of
+    ``scenario``, in order)."""
+    from factorloc.odometry_model import CHI2_3SIGMA_2DOF
+    from factorloc.places import TrackState
+
+    qs = scenario.queries  # type: ignore[attr-defined]
+    if len(qs) != len(results):
+        raise InputError(f"{len(results)} results for {len(qs)} queries")
+    pos_ok, th_ok, pos_all, wrong, flagged, secs = [], [], [], 0, 0, []
+    good: list[bool] = []
+    for q, r in zip(qs, results, strict=True):
+        secs.append(r.seconds)  # type: ignore[attr-defined]
+        e = np.array([r.pose.x - q.truth.x, r.pose.y - q.truth.y])  # type: ignore[attr-defined]
+        eth = abs(math.remainder(r.pose.theta - q.truth.theta, 2 * math.pi))  # type: ignore[attr-defined]
+        good.append(bool(np.hypot(*e) < 0.1 and eth < math.radians(1.0)))
+        if r.state is TrackState.LOST and r.localization.undetermined:  # type: ignore[attr-defined]
+            flagged += 1
+            continue
+        pos_all.append(float(e @ e))
+        if r.flagged:  # type: ignore[attr-defined]
+            flagged += 1
+            continue
+        pos_ok.append(float(e @ e))
+        th_ok.append(eth * eth)
+        cov = r.covariance  # type: ignore[attr-defined]
+        d2 = float(e @ np.linalg.solve(cov[:2, :2], e))
+        if d2 > CHI2_3SIGMA_2DOF or eth > 3.0 * math.sqrt(cov[2, 2]):
+            wrong += 1
+    kid = [i for i, q in enumerate(qs) if "kidnapped" in q.faults]
+    recovered = sum(
+        any(results[j].state is TrackState.RELOCALIZED and good[j] for j in range(i, min(i + 3, len(qs))))  # type: ignore[attr-defined]
+        for i in kid
+    )
+    n_ok = len(pos_ok)
+    return TrackFigures(
+        len(qs),
+        math.sqrt(np.mean(pos_ok)) if n_ok else math.nan,
+        math.degrees(math.sqrt(np.mean(th_ok))) if n_ok else math.nan,
+        math.sqrt(np.mean(pos_all)) if pos_all else math.nan,
+        wrong / n_ok if n_ok else math.nan,
+        flagged / len(qs),
+        len(kid),
+        int(recovered),
+        float(np.median(secs)),
+    )
+
+
+def choice_recall(scenario: object, results: Sequence[object], place_map: PlaceMap, config: object = None) -> tuple[int, float]:
+    """Place choice with a reliable hypothesis: among the queries whose true view overlaps a place (the true
+    position within that place's :attr:`~factorloc.places.Place.footprint_m`) and that the tracker predicted from
+    the previous pose, the share for which :func:`~factorloc.places.places_in_view` around the prediction (with the
+    result's covariance) chose at least one such place. Returns (queries counted, share)."""
+    from factorloc.places import ChoiceConfig, places_in_view
+
+    cfg = config or ChoiceConfig()
+    pos = place_map.positions_m()
+    reach = np.array([p.footprint_m for p in place_map])
+    hits, n = 0, 0
+    for q, r in zip(scenario.queries, results, strict=True):  # type: ignore[attr-defined]
+        if r.predicted is None or "kidnapped" in q.faults:  # type: ignore[attr-defined]
+            continue
+        overlapping = {
+            pid for pid, d, rr in zip(place_map.ids, np.hypot(*(pos - q.truth.translation).T), reach, strict=True) if d <= rr
+        }
+        if not overlapping:
+            continue
+        n += 1
+        chosen = {pid for pid, _ in places_in_view(place_map, r.predicted, r.covariance, cfg)}  # type: ignore[attr-defined]
+        hits += bool(chosen & overlapping)
+    return n, (hits / n if n else math.nan)
+
+
+def verified_recall(
+    log: LaserLog,
+    relations: Relations,
+    config: RecognitionConfig = RecognitionConfig(),
+    *,
+    n_candidates: int = 10,
+    seed_sigma_m: float = 0.5,
+    seed_sigma_rad: float = 0.3,
+    indices: Sequence[int] | None = None,
+    name: str = "",
+    tolerance_s: float = 2e-3,
+) -> RecallResult:
+    """recall@k after geometric verification (the hloc pattern): the top ``n_candidates`` places by signature,
+    each checked by the hierarchy's odometry and ICP steps (:func:`~factorloc.evaluation.relations.relations_config`)
+    seeded at the place with the Scan Context heading (σ ``seed_sigma_m``, ``seed_sigma_rad``, the tracker's
+    re-localization seed); a place is *verified* when the ICP step's estimate is fused and the result determined.
+    ``ranks`` are the ranks among the verified places, in retrieval order (same protocol as
+    :func:`recognition_recall` otherwise)."""
+    from factorloc.estimators.icp import IcpStep
+    from factorloc.estimators.odometry import OdometryStep
+    from factorloc.evaluation.relations import relations_config
+    from factorloc.pipeline import Localizer
+    from factorloc.types import StepStatus
+
+    cfg_loc = relations_config()
+    place_map, place_t = places_along_log(log)
+    recognizer = PlaceRecognizer(place_map, config)
+    time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
+    localizers: dict[str, Localizer] = {}
+    ranks, dth = [], []
+    for i in range(len(relations)) if indices is None else indices:
+        t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
+        if log.odometry.distance_between(t1, t2)[0] < 5.0:
+            continue
+        lo, hi = correct_window_s(log, t1, 1.0, tolerance_s)
+        scan = log.scans.at(t2, tolerance_s)
+        cands = recognizer.candidates(
+            Query(scan=scan, id="q"), n_candidates, exclude=lambda pid, t2=t2: abs(time_of[pid] - t2) <= 15.0
+        )
+        rank, verified = math.inf, 0
+        for c in cands:
+            place = place_map[c.place_id]
+            if c.place_id not in localizers:
+                localizers[c.place_id] = Localizer(
+                    place.reference, cfg_loc, steps=[OdometryStep(cfg_loc.odometry), IcpStep(cfg_loc.icp)]
+                )
+            seed = place.T_world_reference.compose(Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0))
+            q = Query(scan=scan, odometry=Odometry(seed, seed_sigma_m, seed_sigma_m, seed_sigma_rad), id="q")
+            loc = localizers[c.place_id].localize(q)
+            if loc.step("icp").status is StepStatus.FUSED and loc.determined:
+                verified += 1
+                if lo <= time_of[c.place_id] <= hi:
+                    rank = verified
+                    break
+        ranks.append(rank)
+        dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
+    return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), n_candidates)
