@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -14,6 +14,9 @@ from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.verdicts import Check
 
 __all__ = ["Closure", "MapResult", "MappedPlace", "relative_covariance"]
+
+if TYPE_CHECKING:
+    from factorloc.places import PlaceMap
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,6 +148,24 @@ class MapResult:
                 self.place_points[k],
             )
             for k in range(len(self))
+        )
+
+    def place_map(self, prefix: str = "place") -> PlaceMap:
+        """The map as a :class:`~factorloc.places.PlaceMap` for localization and tracking in it.
+
+        Each place becomes a :class:`~factorloc.places.Place` ``f"{prefix}{id:05d}"`` whose reference is its scan
+        (robot frame at the place), posed at the optimized ``T_world_place`` with its marginal covariance, so that
+        :class:`~factorloc.places.Tracker` and :class:`~factorloc.places.MultiPlaceLocalizer` account for the map's
+        own uncertainty.
+        """
+        from factorloc.places import Place, PlaceMap
+        from factorloc.types import Reference, Scan
+
+        return PlaceMap(
+            [
+                Place(f"{prefix}{p.id:05d}", Reference(scan=Scan(p.points_m)), p.T_world_place, p.covariance)
+                for p in self.places()
+            ]
         )
 
     def joint_marginal(self, place_a: int, place_b: int) -> np.ndarray:
