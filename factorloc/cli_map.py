@@ -36,7 +36,10 @@ def read_log(path: Path, scan_topic: str = "/scan", odom_topic: str = "/odom", m
 
 def map_command(
     log_path: Annotated[Path, typer.Argument(metavar="LOG", help="A ROS 1 .bag / ROS 2 bag directory, or a CARMEN log.")],
-    out: Annotated[Path, typer.Argument(metavar="OUT_DIR", help="Directory for places.json, trajectory.tum, place_map/ (a PlaceMap: factorloc track --map), map.png.")],
+    out: Annotated[
+        Path,
+        typer.Argument(metavar="OUT_DIR", help="Directory for places.json, trajectory.tum, place_map/ (track --map), map.png."),
+    ],
     spacing: Annotated[float, typer.Option("--spacing", help="Metres of odometry path between places.")] = 0.5,
     turn_deg: Annotated[float, typer.Option("--turn-deg", help="Degrees of rotation between places.")] = 20.0,
     robust: Annotated[str, typer.Option("--robust", help="Back end: gnc, huber, cauchy or none.")] = "gnc",

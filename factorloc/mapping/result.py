@@ -162,10 +162,7 @@ class MapResult:
         from factorloc.types import Reference, Scan
 
         return PlaceMap(
-            [
-                Place(f"{prefix}{p.id:05d}", Reference(scan=Scan(p.points_m)), p.T_world_place, p.covariance)
-                for p in self.places()
-            ]
+            [Place(f"{prefix}{p.id:05d}", Reference(scan=Scan(p.points_m)), p.T_world_place, p.covariance) for p in self.places()]
         )
 
     def joint_marginal(self, place_a: int, place_b: int) -> np.ndarray:
