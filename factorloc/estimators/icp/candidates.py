@@ -271,10 +271,12 @@ def _search_window(
 
 
 def _windows(
-    prepared: IcpReference, seeds: Seeds, config: IcpConfig
+    prepared: IcpReference, seeds: Seeds, config: IcpConfig, *, weak: bool = False
 ) -> list[tuple[tuple[float, float], float, float, float, str]]:
     """The search windows ``(center, heading, half-width, radius, origin)`` in the reference frame: the one the
-    seeds bound, then (``widen``) the whole one around the position seed."""
+    seeds bound, then (``widen``) the whole one around the position seed. ``weak``: ``seeds`` is a weak prior, and
+    the second window is the one searched without any prior (around the reference, every heading): a prior too
+    broad to seed may lie far from where the scans overlap."""
     g = config.global_init
     full = g.search.radius_m
     pos, head = seeds.position, seeds.heading
@@ -290,7 +292,9 @@ def _windows(
     else:
         heading, half = 0.0, math.pi
     out = [(center, heading, half, radius, "global initialization")]
-    if g.widen and (radius < full or half < math.pi):
+    if weak:
+        out.append(((0.0, 0.0), 0.0, math.pi, full, "global initialization, widened"))
+    elif g.widen and (radius < full or half < math.pi):
         out.append((center, 0.0, math.pi, full, "global initialization, widened"))
     return out
 
@@ -321,7 +325,7 @@ def global_attempts(
     on_prior = seeds.position is None and seeds.weak is not None
     prior = seeds.weak if on_prior else seeds
     prior_fit = (seeded.result.fitness, seeded.violation) if seeded is not None else (math.nan, math.nan)
-    for i, (center, heading, half, radius, origin) in enumerate(_windows(prepared, prior, config)):
+    for i, (center, heading, half, radius, origin) in enumerate(_windows(prepared, prior, config, weak=on_prior)):
         found, n = _search_window(prepared, query, config, center, heading, half, radius)
         if not found:
             continue
