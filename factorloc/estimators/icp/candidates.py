@@ -310,8 +310,9 @@ def global_attempts(
     earlier window's), so that a solution elsewhere must explain the scan clearly better than the seed does.
 
     Without a reliable position but with a weak prior (``seeds.weak``, ``global_init.weak_prior``), the first
-    window is the one the weak prior bounds, and its best solution stands for the prior's own alignment: a later
-    window's solution outside the prior's region is contested with it as with a seeded alignment.
+    window is the one the weak prior bounds, and its best solution stands for the prior's own alignment (never the
+    result): the whole window's solution is its rival, and outside the prior's region contested with it as with a
+    seeded alignment.
     """
     r = config.reliability
     g = config.global_init
@@ -330,6 +331,13 @@ def global_attempts(
         if not found:
             continue
         top = found[0]
+        if on_prior and i == 0:
+            # the best solution in the weak prior's window stands for the prior's alignment: a rival of the later
+            # window's and what a solution outside the prior's region contests, never the result (the window hides
+            # the rivals outside it, which a prior too broad to seed must not hide)
+            prior_fit = (top.result.fitness, top.violation)
+            earlier.append((top.score, top.result.T_target_source, constraint_strength(top.result)))
+            continue
         g_res, T = top.result, top.result.T_target_source
         rivals = [
             (f.score, f.result.T_target_source, constraint_strength(f.result))
@@ -365,8 +373,7 @@ def global_attempts(
             rivalry=rivalry,
             contest=Contest(top.score, rival, overturns, prior_fit, weak=on_prior),
         )
-        if on_prior and i == 0:  # the best solution in the weak prior's window stands for the prior's alignment
-            prior_fit = (top.result.fitness, top.violation)
+
         sol = Solution(g_res, cov, ev, judge(ev, config), origin, used_global=True, n_candidates=n)
         if best is None or sol.reliable or g_res.fitness > best.result.fitness:
             best = sol
