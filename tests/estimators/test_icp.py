@@ -541,7 +541,7 @@ def test_a_weak_prior_leaves_a_kidnapped_robots_global_solution_reliable_without
 def test_a_weak_odometry_prior_keeps_a_corridor_view_from_a_confidently_wrong_global_solution() -> None:
     # data/sample q0022: a corridor view 6 m from the reference, odometry 0.59 m off at σ (0.27, 0.51) m, unreliable
     # by 7 mm. Without the weak prior ICP's global search accepts a solution 9.2 m off at σ of a few cm; with it, the
-    # best solution in the odometry's window is a rival that leaves that solution ambiguous, and nothing is fused
+    # best alignment in the odometry's window is free-space consistent, so that solution may not overturn the prior
     from pathlib import Path
 
     from factorloc import Localizer
@@ -556,5 +556,6 @@ def test_a_weak_odometry_prior_keeps_a_corridor_view_from_a_confidently_wrong_gl
         loc = Localizer(scen.reference_of(case), replace(base, icp=icp)).localize(case.query)
         assert loc.step("odometry").status is StepStatus.UNRELIABLE
         assert (loc.step("icp").status is StepStatus.FUSED) is wrong
+        assert ("icp.global.seed_refuted" in loc.step("icp").rule_codes) is not wrong
         err = metrics.pose_errors(loc.pose.as_array()[None], case.truth.as_array()[None])
         assert bool(metrics.confidently_wrong(err, loc.covariance[None])[0]) is wrong

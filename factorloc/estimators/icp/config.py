@@ -289,9 +289,11 @@ class GlobalInitConfig:
     weak_prior
         Without a reliable position seed, the latest weak prior (an earlier step's estimate too broad to seed,
         :meth:`~factorloc.estimators.base.Hypotheses.weak_pose`) is held against a global solution as a
-        reliable seed is: ICP is also aligned from it, and a solution outside its χ² region overturns it only
+        reliable seed is: the search first covers the window it bounds, whose best solution stands for the
+        prior's alignment (a rival, never the result), and a solution outside its χ² region overturns it only
         when that alignment is not free-space consistent (``icp.global.seed_refuted``), with the stricter
-        ambiguity ratio. It is never a seed the audit reads (no :class:`~factorloc.verdicts.SeedEvidence`).
+        ambiguity ratio. It is never a seed the audit reads (no :class:`~factorloc.verdicts.SeedEvidence`). Off:
+        no held-out log or simulator seed gains, one kidnapped recovery is lost (``docs/calibration/icp.md``).
     """
 
     enabled: bool = True
