@@ -3,10 +3,10 @@
 Usage::
 
     factorloc simulate --world apartment --queries 300 --seed 7 /tmp/apt300
-    .venv/bin/python benchmarks/bench_pipeline.py /tmp/apt300 [--json OUT]
+    .venv/bin/python benchmarks/bench_pipeline.py /tmp/apt300 [--json OUT] [--config CONFIG.yaml]
 
 Prints each target of the default configuration against the measured figure
-(over all queries and over the fault-free ones), then, for every
+(over all queries and over the fault-free ones), the figures per fault tag, then, for every
 confidently-wrong or heading-outlier result, the steps that were fused and
 which of them were false positives (reliable, off by > 3σ). Speed ratios
 against peers are ``factorloc bench``'s job.
