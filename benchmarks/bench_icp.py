@@ -101,7 +101,7 @@ def _ablated(config: Config, what: str) -> Config:
 def candidates() -> dict[str, Candidate]:
     """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
     floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
-    training logs."""
+    training logs, ``weak_prior_on`` / ``weak_prior_off`` the ICP's weak prior (``global_init.weak_prior``)."""
     base = relations_config()
     out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
     for floor_mm in (7.5, 10, 12.5, 15, 20):
@@ -114,6 +114,14 @@ def candidates() -> dict[str, Candidate]:
                 out[name] = Candidate(name, cfg)
     for what in ABLATIONS:
         out[f"-{what}"] = Candidate(f"-{what}", _ablated(base, what))
+    for on in (True, False):  # the weak prior (global_init.weak_prior) switched on and off
+        icp = base.icp
+        cfg = replace(base, icp=replace(icp, global_init=replace(icp.global_init, weak_prior=on)))
+        out[f"weak_prior_{'on' if on else 'off'}"] = Candidate(f"weak_prior_{'on' if on else 'off'}", cfg)
+    on = out["weak_prior_on"].config
+    out["weak_prior_rivals"] = Candidate(  # the weak prior's window and rivals, not its free-space contest
+        "weak_prior_rivals", replace(on, icp=replace(on.icp, ablate=(*on.icp.ablate, "icp.global.seed_refuted.weak")))
+    )
     return out
 
 

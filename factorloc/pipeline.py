@@ -128,8 +128,8 @@ class Localizer:
                 failure = f"{type(exc).__name__}: {exc}"
                 log.warning("step %s failed on query %r: %s", step.name, query.id, failure)
             runs.append(StepRun(step.name, est, time.perf_counter() - t0, failure, unusable))
-            if est is not None and est.reliable:
-                hypotheses = hypotheses.plus(est)
+            if est is not None:
+                hypotheses = hypotheses.plus(est)  # an unreliable estimate is kept as a weak prior only
         return fuse_gated(gate(runs, self.config.gating), self.strategy, config=self.config, query=query)
 
 

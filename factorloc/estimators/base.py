@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -13,15 +14,19 @@ from factorloc.verdicts import Check, Unit
 
 @dataclass(frozen=True)
 class Hypotheses:
-    """The reliable estimates of the earlier steps, in hierarchy order.
+    """The reliable estimates of the earlier steps, in hierarchy order, and the unreliable ones as weak priors.
 
     An estimator reads the seed it needs: :meth:`heading` gives the *latest*
     reliable heading (θ3, else θ2, else θ1 — the later steps are the more
     exact ones in the patent's hierarchy), :meth:`position` the latest
-    reliable position.
+    reliable position. ``weak`` holds the earlier steps' *unreliable* estimates
+    (too broad to fuse or seed, e.g. an odometry whose σ exceeds its limit):
+    :meth:`weak_pose` gives the latest one with a finite σ, which a step may
+    only use to scrutinize a solution that contradicts it, never as a seed.
     """
 
     estimates: tuple[Estimate, ...] = ()
+    weak: tuple[Estimate, ...] = ()
 
     def heading(self) -> tuple[float, float, str] | None:
         """``(theta_rad, sigma_rad, step)`` of the latest reliable heading, or None."""
@@ -43,13 +48,46 @@ class Hypotheses:
                 )
         return None
 
+    def weak_pose(self) -> tuple[tuple[float, float, float, float, str], tuple[float, float, str] | None] | None:
+        """The latest unreliable estimate that measures the position with a finite σ, as ``((x_m, y_m, sigma_x_m,
+        sigma_y_m, step), (theta_rad, sigma_rad, step) or None)`` (its heading when it measures one with a finite
+        σ), or None."""
+        for est in reversed(self.weak):
+            if not est.measures(Component.X):
+                continue
+            sx, sy = est.sigma(Component.X), est.sigma(Component.Y)
+            if not (math.isfinite(sx) and math.isfinite(sy)):
+                continue
+            position = (est.value(Component.X), est.value(Component.Y), sx, sy, est.step)
+            heading = None
+            if est.measures(Component.THETA) and math.isfinite(est.sigma(Component.THETA)):
+                heading = (est.value(Component.THETA), est.sigma(Component.THETA), est.step)
+            return position, heading
+        return None
+
     def plus(self, estimate: Estimate) -> Hypotheses:
-        """These hypotheses and ``estimate`` (only kept when reliable)."""
-        return Hypotheses(self.estimates + (estimate,)) if estimate.reliable else self
+        """These hypotheses and ``estimate``: a reliable one among the estimates, one unreliable only by the σ rule
+        (:func:`too_broad`) a weak prior, any other left out."""
+        if estimate.reliable:
+            return Hypotheses(self.estimates + (estimate,), self.weak)
+        if too_broad(estimate):
+            return Hypotheses(self.estimates, self.weak + (estimate,))
+        return self
 
     @classmethod
     def of(cls, estimates: Sequence[Estimate]) -> Hypotheses:
-        return cls(tuple(e for e in estimates if e.reliable))
+        return cls(tuple(e for e in estimates if e.reliable), tuple(e for e in estimates if too_broad(e)))
+
+
+def too_broad(estimate: Estimate) -> bool:
+    """Whether an unreliable estimate failed only the σ rule (:func:`sigma_checks`: ``<step>.sigma_position`` /
+    ``<step>.sigma_heading``): a hypothesis too broad to fuse or seed, not one its own tests refuted."""
+    failed = [c for c in estimate.checks if not c.passed]
+    return (
+        not estimate.reliable
+        and bool(failed)
+        and all(c.code in (f"{estimate.step}.sigma_position", f"{estimate.step}.sigma_heading") for c in failed)
+    )
 
 
 @runtime_checkable

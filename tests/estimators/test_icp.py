@@ -467,3 +467,95 @@ def test_real_laser_logs_heading_and_position_sigma_are_honest_in_bulk_and_tail(
     # outlier is tolerated (on every local relation the shares beyond 3σ are ≤ 0.2 %, see the IcpConfig docstring).
     assert 0.4 < pos.mean() < 2.0 and np.sum(pos > 11.83) <= 1
     assert 0.25 < head.mean() < 1.0 and np.sum(head > 9.0) <= 1
+
+
+# --------------------------------------------------------------------------
+# weak priors: an earlier step's estimate too broad to seed (global_init.weak_prior)
+# --------------------------------------------------------------------------
+def _too_broad_odometry(pose: Pose2, sigma_m: float, sigma_rad: float) -> Estimate:
+    """An odometry estimate unreliable only by the odometry step's σ rule (limits 0.5 m, 0.55 rad)."""
+    from factorloc.estimators.base import sigma_checks
+
+    est = Estimate.pose("odometry", pose, sigma_m, sigma_m, sigma_rad)
+    checks = sigma_checks(est, 0.5, 0.55)
+    return est.with_verdict(all(c.passed for c in checks), render_checks(checks, only_failed=True), checks)
+
+
+def _weak_prior(cfg: IcpConfig, contest: bool = True) -> IcpConfig:
+    """``cfg`` with the weak prior on (``contest=False``: its window and rivals only, not its free-space contest)."""
+    on = replace(cfg, global_init=replace(cfg.global_init, weak_prior=True))
+    return on if contest else replace(on, ablate=(*on.ablate, "icp.global.seed_refuted.weak"))
+
+
+def test_hypotheses_keep_only_estimates_unreliable_by_the_sigma_rule_as_weak_priors() -> None:
+    broad = _too_broad_odometry(Pose2(1.0, 2.0, 0.3), 0.6, 0.1)
+    refuted = Estimate.pose("compass", Pose2(), 0.6, 0.6, 0.1, reliable=False, reason="peak < Ct")
+    hyp = Hypotheses().plus(broad).plus(refuted)
+    assert not broad.reliable and hyp.position() is None and hyp.heading() is None
+    (x, y, sx, sy, step), heading = hyp.weak_pose()
+    assert (x, y, sx, sy, step) == (pytest.approx(1.0), pytest.approx(2.0), pytest.approx(0.6), pytest.approx(0.6), "odometry")
+    assert heading == (pytest.approx(0.3), pytest.approx(0.1), "odometry")
+    assert Hypotheses().plus(refuted).weak_pose() is None  # refuted by its own tests, not merely broad
+    assert Hypotheses.of([broad, refuted]).weak == (broad,)
+
+
+def test_a_weak_prior_contests_a_global_solution_outside_its_region_as_a_seed_does() -> None:
+    from factorloc.estimators.icp.rules import Contest, Evidence, seed_refuted
+
+    cfg = _weak_prior(IcpConfig())
+    consistent = Evidence(0.5, 0.2, 0.01, contest=Contest(0.5, 0.1, "odometry", (0.3, 0.02), weak=True))
+    c = seed_refuted(consistent, cfg)
+    assert not c.passed
+    assert render_check(c).startswith("not free to overturn the odometry prior (it contradicts the odometry prior, whose own")
+    refuted = Evidence(0.5, 0.2, 0.01, contest=Contest(0.5, 0.1, "odometry", (0.1, 0.3), weak=True))
+    assert seed_refuted(refuted, cfg).passed  # the scan puts 30 % of the prior's alignment into seen-free space
+    assert seed_refuted(consistent, _weak_prior(IcpConfig(), contest=False)) is None
+
+
+def test_a_weak_prior_leaves_a_kidnapped_robots_global_solution_reliable_without_its_contest() -> None:
+    # a sim apartment laser pair (seed 1); the odometry is 4 m off the truth and turned by 1 rad, at σ 0.6 m (too
+    # broad to seed). The best alignment in the prior's own window fits poorly (0.21) but is free-space consistent,
+    # so with the free-space contest the right global solution may not overturn the prior; with the window and
+    # rivals only, it is reliable and right, as without the weak prior
+    from factorloc.sim import render_scan
+
+    world = apartment()
+    rng = np.random.default_rng(1)
+    T_ref = _free_pose(world, rng)
+    truth = _pose_within_2m(world, T_ref, rng)
+    ref = Reference(scan=render_scan(world, T_ref, rng=rng), T_world_reference=T_ref)
+    pts = render_scan(world, truth, rng=rng).points_m
+    a = rng.uniform(-math.pi, math.pi)
+    prior = _too_broad_odometry(Pose2(truth.x + 4.0 * math.cos(a), truth.y + 4.0 * math.sin(a), truth.theta + 1.0), 0.6, 0.3)
+    hyp = Hypotheses().plus(prior)
+    prep = prepare_reference(ref)
+    for cfg in (IcpConfig(), _weak_prior(IcpConfig(), contest=False)):
+        est = estimate(prep, pts, hyp, cfg)
+        assert est.reliable and math.hypot(est.values[0] - truth.x, est.values[1] - truth.y) < 0.1
+        assert est.seed is None  # a weak prior is never a seed the audit reads
+    blocked = estimate(prep, pts, hyp, _weak_prior(IcpConfig()))
+    assert not blocked.reliable and _failed(blocked) == ["icp.global.seed_refuted"]
+    assert "contradicts the odometry prior" in blocked.reason
+
+
+def test_a_weak_odometry_prior_keeps_a_corridor_view_from_a_confidently_wrong_global_solution() -> None:
+    # data/sample q0022: a corridor view 6 m from the reference, odometry 0.59 m off at σ (0.27, 0.51) m, unreliable
+    # by 7 mm. Without the weak prior ICP's global search accepts a solution 9.2 m off at σ of a few cm; with it, the
+    # best alignment in the odometry's window is free-space consistent, so that solution may not overturn the prior
+    from pathlib import Path
+
+    from factorloc import Localizer
+    from factorloc.datasets import load_scenario
+    from factorloc.evaluation import metrics
+
+    scen = load_scenario(Path(__file__).resolve().parents[2] / "data" / "sample")
+    case = scen.query_by_id("q0022")
+    base = Config()
+    for weak_prior, wrong in ((False, True), (True, False)):
+        icp = replace(base.icp, global_init=replace(base.icp.global_init, weak_prior=weak_prior))
+        loc = Localizer(scen.reference_of(case), replace(base, icp=icp)).localize(case.query)
+        assert loc.step("odometry").status is StepStatus.UNRELIABLE
+        assert (loc.step("icp").status is StepStatus.FUSED) is wrong
+        assert ("icp.global.seed_refuted" in loc.step("icp").rule_codes) is not wrong
+        err = metrics.pose_errors(loc.pose.as_array()[None], case.truth.as_array()[None])
+        assert bool(metrics.confidently_wrong(err, loc.covariance[None])[0]) is wrong

@@ -41,10 +41,13 @@ __all__ = ["QueryScan", "Seeds", "Solution", "evidence", "global_attempts", "see
 @dataclass(frozen=True)
 class Seeds:
     """The reliable hypotheses that seed the step: ``position`` ``(x_m, y_m, σx_m, σy_m, step)`` and ``heading``
-    ``(θ_rad, σ_rad, step)`` in the world frame (see :class:`~factorloc.estimators.base.Hypotheses`)."""
+    ``(θ_rad, σ_rad, step)`` in the world frame (see :class:`~factorloc.estimators.base.Hypotheses`); ``weak``:
+    without a reliable position, the weak prior a global solution is held against (``global_init.weak_prior``),
+    as seeds of the same form (never a seed of the step's result)."""
 
     position: tuple[float, float, float, float, str] | None
     heading: tuple[float, float, str] | None
+    weak: Seeds | None = None
 
     @property
     def full(self) -> bool:
@@ -268,10 +271,12 @@ def _search_window(
 
 
 def _windows(
-    prepared: IcpReference, seeds: Seeds, config: IcpConfig
+    prepared: IcpReference, seeds: Seeds, config: IcpConfig, *, weak: bool = False
 ) -> list[tuple[tuple[float, float], float, float, float, str]]:
     """The search windows ``(center, heading, half-width, radius, origin)`` in the reference frame: the one the
-    seeds bound, then (``widen``) the whole one around the position seed."""
+    seeds bound, then (``widen``) the whole one around the position seed. ``weak``: ``seeds`` is a weak prior, and
+    the second window is the one searched without any prior (around the reference, every heading): a prior too
+    broad to seed may lie far from where the scans overlap."""
     g = config.global_init
     full = g.search.radius_m
     pos, head = seeds.position, seeds.heading
@@ -287,7 +292,9 @@ def _windows(
     else:
         heading, half = 0.0, math.pi
     out = [(center, heading, half, radius, "global initialization")]
-    if g.widen and (radius < full or half < math.pi):
+    if weak:
+        out.append(((0.0, 0.0), 0.0, math.pi, full, "global initialization, widened"))
+    elif g.widen and (radius < full or half < math.pi):
         out.append((center, 0.0, math.pi, full, "global initialization, widened"))
     return out
 
@@ -301,6 +308,11 @@ def global_attempts(
     ``seeded`` comes back with its free-space violation measured. A window's solution is judged against its
     distinct rivals: the window's other refined candidates and the solutions found before (the seeded one, the
     earlier window's), so that a solution elsewhere must explain the scan clearly better than the seed does.
+
+    Without a reliable position but with a weak prior (``seeds.weak``, ``global_init.weak_prior``), the first
+    window is the one the weak prior bounds, and its best solution stands for the prior's own alignment (never the
+    result): the whole window's solution is its rival, and outside the prior's region contested with it as with a
+    seeded alignment.
     """
     r = config.reliability
     g = config.global_init
@@ -311,11 +323,21 @@ def global_attempts(
         seeded = with_violation(seeded, prepared, query)
         best = seeded
         earlier.append((seeded.evidence.score(config), seeded.T_reference_query, seeded.strength))
-    for center, heading, half, radius, origin in _windows(prepared, seeds, config):
+    on_prior = seeds.position is None and seeds.weak is not None
+    prior = seeds.weak if on_prior else seeds
+    prior_fit = (seeded.result.fitness, seeded.violation) if seeded is not None else (math.nan, math.nan)
+    for i, (center, heading, half, radius, origin) in enumerate(_windows(prepared, prior, config, weak=on_prior)):
         found, n = _search_window(prepared, query, config, center, heading, half, radius)
         if not found:
             continue
         top = found[0]
+        if on_prior and i == 0:
+            # the best solution in the weak prior's window stands for the prior's alignment: a rival of the later
+            # window's and what a solution outside the prior's region contests, never the result (the window hides
+            # the rivals outside it, which a prior too broad to seed must not hide)
+            prior_fit = (top.result.fitness, top.violation)
+            earlier.append((top.score, top.result.T_target_source, constraint_strength(top.result)))
+            continue
         g_res, T = top.result, top.result.T_target_source
         rivals = [
             (f.score, f.result.T_target_source, constraint_strength(f.result))
@@ -339,14 +361,19 @@ def global_attempts(
             rival_ov = 0.0 if rival_T is None else query.overlap(prepared, rival_T, config)[0]
             rivalry = Rivalry(rival / top.score if top.score > 0.0 else math.inf, ov, rival_ov)
         overturns = None
-        if seeds.position is not None and seed_distance2(prepared, T, cov, seeds)[0] > chi2_2dof(
+        if prior.position is not None and seed_distance2(prepared, T, cov, prior)[0] > chi2_2dof(
             config.seed.consistency_probability
         ):
-            overturns = seeds.position[4]
-        seeded_fit = (seeded.result.fitness, seeded.violation) if seeded is not None else (math.nan, math.nan)
+            overturns = prior.position[4]
         ev = evidence(
-            g_res, cov, strength, top.violation, rivalry=rivalry, contest=Contest(top.score, rival, overturns, seeded_fit)
+            g_res,
+            cov,
+            strength,
+            top.violation,
+            rivalry=rivalry,
+            contest=Contest(top.score, rival, overturns, prior_fit, weak=on_prior),
         )
+
         sol = Solution(g_res, cov, ev, judge(ev, config), origin, used_global=True, n_candidates=n)
         if best is None or sol.reliable or g_res.fitness > best.result.fitness:
             best = sol

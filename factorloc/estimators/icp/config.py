@@ -286,6 +286,14 @@ class GlobalInitConfig:
     ignore_degenerate_rivals
         Without a position seed, a non-degenerate solution reaching ``overlap_min_fitness`` is compared only
         with non-degenerate rivals.
+    weak_prior
+        Without a reliable position seed, the latest weak prior (an earlier step's estimate too broad to seed,
+        :meth:`~factorloc.estimators.base.Hypotheses.weak_pose`) is held against a global solution as a
+        reliable seed is: the search first covers the window it bounds, whose best solution stands for the
+        prior's alignment (a rival, never the result), and a solution outside its χ² region overturns it only
+        when that alignment is not free-space consistent (``icp.global.seed_refuted``), with the stricter
+        ambiguity ratio. It is never a seed the audit reads (no :class:`~factorloc.verdicts.SeedEvidence`). Off:
+        no held-out log or simulator seed gains, one kidnapped recovery is lost (``docs/calibration/icp.md``).
     """
 
     enabled: bool = True
@@ -306,6 +314,7 @@ class GlobalInitConfig:
     overlap_rival_margin: float = 0.05
     ambiguity_overlap_ratio: float = 0.75
     ignore_degenerate_rivals: bool = True
+    weak_prior: bool = False
 
     def __post_init__(self) -> None:
         if self.refine < 1:

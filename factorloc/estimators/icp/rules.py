@@ -50,12 +50,19 @@ class Rivalry:
 class Contest:
     """A global solution among the others: its score, the best distinct rival's, and the position seed it lies
     outside the region of (``overturns``: that seed's step, None when inside or without one) with the seeded
-    alignment's (fitness, violation)."""
+    alignment's (fitness, violation). ``weak``: what it overturns is a weak prior (an estimate too broad to
+    seed, ``global_init.weak_prior``), not a reliable seed."""
 
     score: float
     rival_score: float
     overturns: str | None = None
     seeded_fit: tuple[float, float] = (math.nan, math.nan)
+    weak: bool = False
+
+    @property
+    def overturned(self) -> str:
+        """What it overturns, for people: ``"<step> seed"`` or ``"<step> prior"``."""
+        return f"{self.overturns} {'prior' if self.weak else 'seed'}"
 
 
 @dataclass(frozen=True)
@@ -213,18 +220,19 @@ def overlap_ambiguity(ev: Evidence, config: IcpConfig) -> Check | None:
 # --------------------------------------------------------------------------
 @_rule("icp.global.seed_refuted")
 def seed_refuted(ev: Evidence, config: IcpConfig) -> Check | None:
-    """A global solution outside the region of a reliable position seed overturns it only when the seed's own
-    alignment put more than ``max_violation`` of the scan into seen-free space (the scan refutes it)."""
+    """A global solution outside the region of a reliable position seed (or of a weak prior,
+    ``global_init.weak_prior``) overturns it only when the seed's own alignment put more than ``max_violation`` of
+    the scan into seen-free space (the scan refutes it)."""
     c = ev.contest
-    if c is None or c.overturns is None:
+    if c is None or c.overturns is None or (c.weak and "icp.global.seed_refuted.weak" in config.ablate):
         return None
     s_fit, s_v = c.seeded_fit
     consistent = s_v <= config.reliability.max_violation
     return Check.flag(
         "icp.global.seed_refuted",
-        f"free to overturn the {c.overturns} seed",
+        f"free to overturn the {c.overturned}",
         not consistent,
-        note=f"it contradicts the {c.overturns} seed, whose own alignment is free-space consistent "
+        note=f"it contradicts the {c.overturned}, whose own alignment is free-space consistent "
         f"(fitness {s_fit:.2f}, {100 * s_v:.0f} % in seen-free space)"
         if consistent
         else "",

@@ -61,6 +61,8 @@ def estimate(
     hypotheses
         Reliable estimates of the earlier steps: the latest position and heading seed ICP; without both (or
         when the seeded solution is unreliable, and not merely degenerate) the global initialization runs.
+        Without a reliable position, the latest weak prior (``global_init.weak_prior``) contests a global
+        solution that lies outside its region.
     config
         Defaults to ``prepared.config``.
     query_from_cloud
@@ -81,7 +83,7 @@ def estimate(
         without a position seed, ``rival_overlap_fitness``.
     """
     config, query = _inputs(prepared, query_points_m, config, query_from_cloud)
-    seeds = Seeds(hypotheses.position(), hypotheses.heading())
+    seeds = _seeds(hypotheses, config)
     seeded = seeded_attempt(prepared, query, seeds, config) if seeds.full else None
     best = seeded
     run_global, seeded = _global_needed(prepared, query, seeded, config)
@@ -143,6 +145,18 @@ def _heading_checked(est: Estimate, sol: Solution, query: QueryScan) -> Estimate
     reason = f"position only, heading unconstrained (strength {strength:.3g} < {MIN_HEADING_STRENGTH:g}): {est.reason}"
     out = position.with_verdict(True, reason, (*est.checks, check))
     return replace(out, diagnostics={**out.diagnostics, "heading_strength": strength})
+
+
+def _seeds(hypotheses: Hypotheses, config: IcpConfig) -> Seeds:
+    """The reliable seeds and, without a reliable position (``global_init.weak_prior``), the weak prior: its
+    position, and the reliable heading or else its own."""
+    position, heading = hypotheses.position(), hypotheses.heading()
+    weak = None
+    if position is None and config.global_init.weak_prior:
+        prior = hypotheses.weak_pose()
+        if prior is not None:
+            weak = Seeds(prior[0], heading if heading is not None else prior[1])
+    return Seeds(position, heading, weak)
 
 
 def _inputs(
