@@ -153,6 +153,12 @@ class _Batch:
     seeded: bool
     localizers: dict[str, Localizer] = field(default_factory=dict)
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # sent without the process's own localizers: a prepared reference holds native objects that cannot be
+        # pickled (small_gicp's KdTree), and a Dask worker that fetches this batch from another worker after
+        # that one used it would otherwise fail the transfer and wait on it for ever
+        return (_Batch, (self.references, self.config, self.steps, self.seeded))
+
     def localizer(self, reference_id: str) -> tuple[Localizer, bool]:
         """The process's :class:`Localizer` of ``reference_id`` and whether it was prepared just now."""
         loc = self.localizers.get(reference_id)

@@ -142,6 +142,9 @@ class DaskExecutor:
                         silence_logs=logging.ERROR,  # not its shutdown chatter; failures are reported here
                     )
                 self._client = distributed.Client(self._cluster)
+                # every worker up before anything is broadcast: a worker that joins later would fetch the shared
+                # object from another worker instead of holding its own copy
+                self._client.wait_for_workers(self.n_workers, timeout=120)
             if self.warm_up:
                 self._client.run(_warm_up_worker)
         except BaseException:

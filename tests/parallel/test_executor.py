@@ -85,3 +85,22 @@ def test_a_query_that_raises_is_reported_by_id_and_counted_the_others_kept(make_
             assert kept[r.query_id].pose.as_array().tobytes() == r.pose.as_array().tobytes()
     run = run_hierarchy(scen, steps=raising_steps(bad))
     assert [q.index for q in run.runs] == [0, 2, 3, 5] and [f.index for f in run.failures] == [1, 4]
+
+
+def test_the_shared_batch_pickles_after_a_process_prepared_its_references() -> None:
+    # a Dask worker may fetch the shared batch from another worker that already ran chunks with it: a prepared
+    # reference holds objects that cannot be pickled (small_gicp's KdTree), so the batch travels without them —
+    # before, the transfer failed and the task waited on it for ever (seen as a hang of the 2-worker test)
+    import pickle
+
+    from factorloc.config import Config
+    from factorloc.datasets import load_scenario
+    from factorloc.evaluation.runner import _Batch
+
+    s = load_scenario("data/sample")
+    batch = _Batch({r.id: r.reference for r in s.references}, Config(), None, True)
+    loc, fresh = batch.localizer(s.references[0].id)
+    loc.localize(s.queries[0].query)
+    assert fresh and batch.localizers
+    copy = pickle.loads(pickle.dumps(batch))
+    assert copy.localizers == {} and copy.seeded and set(copy.references) == set(batch.references)
