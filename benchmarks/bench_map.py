@@ -163,7 +163,8 @@ def _track(
             f"{cmp['heading_rmse_deg']:.2f} deg; unflagged only: position RMSE {cmp['unflagged_position_rmse_cm']:.2f} cm, "
             f"heading RMSE {cmp['unflagged_heading_rmse_deg']:.2f} deg; beyond 3σ of the tracker's covariance: "
             f"{cmp['beyond_3sigma']} of {cmp['unflagged']} unflagged ({100 * cmp['beyond_3sigma_rate']:.2f} %); "
-            f"tracker position σ median {cmp['sigma_position_median_cm']:.2f} cm"
+            f"tracker position σ median {cmp['sigma_position_median_cm']:.2f} cm; the two maps differ on the kept scans by "
+            f"{cmp['maps_difference_rmse_cm']:.2f} cm RMSE"
         )
         print(f"tracking latency median {np.median(lat):.1f} ms (p95 {np.percentile(lat, 95):.1f}, max {lat.max():.1f})")
         summary[variant] = {"rows": table, "compare": cmp, "states": track.states(), "latency_ms_median": float(np.median(lat))}

@@ -148,8 +148,11 @@ def track_relations(
 
     ``log`` is the full log. Method ``"track"``: both ends held back (both posed by the track); ``"track+map"``:
     one end held back, the other posed by the map of the rest. ``reliable`` = no held-back end flagged by the
-    tracker; nothing is counted beyond 3σ here (see :func:`compare_with_map`); ``seconds`` the held-back ends'
-    tracking latency (max of the two).
+    tracker; ``seconds`` the held-back ends' tracking latency (max of the two). A ``"track+map"`` relation is
+    *beyond 3σ* (``confidently_wrong``, reliable ones only) when, seen from the kept end (the map's pose, taken as
+    exact), the held end's position error has a squared Mahalanobis distance under the tracker's 2×2 position
+    covariance (rotated into that frame) above the 2-dof χ² 3σ quantile, 11.83 (``nees_position``: that d²; NaN
+    for ``"track"`` relations, never beyond 3σ).
     """
     held_pos = {int(i): k for k, i in enumerate(track.held)}
     kept_pos = {int(i): k for k, i in enumerate(track.kept)}
@@ -168,15 +171,39 @@ def track_relations(
         poses = []
         for scan, h in ((a, ends[0]), (b, ends[1])):
             poses.append(Pose2.from_array(track.poses[h] if h is not None else track.map.scan_poses[kept_pos[scan]]))
-        T = poses[0].between(poses[1])
-        e = Pose2.from_array(relations.poses[n]).between(T)
+        true = Pose2.from_array(relations.poses[n])
+        e = true.between(poses[0].between(poses[1]))
         dist, _ = log.odometry.distance_between(t1, t2)
         kind = "local" if dist < local_threshold_m else "loop"
-        method = "track" if ends[0] is not None and ends[1] is not None else "track+map"
+        both = ends[0] is not None and ends[1] is not None
         hs = [h for h in ends if h is not None]
         reliable = not any(bool(flagged[h]) for h in hs)
         sec = max(track.results[h].seconds for h in hs)
-        out.append(RelationResult(method, n, kind, math.hypot(e.x, e.y), abs(math.degrees(e.theta)), reliable, False, sec))
+        d2 = math.nan
+        if not both:  # seen from the kept end (the map's pose): the held end's position error in that frame
+            h = hs[0]
+            ref, held_pose, rel_true = (poses[0], poses[1], true) if ends[1] is not None else (poses[1], poses[0], true.inverse())
+            err = rel_true.between(ref.between(held_pose))
+            c, s_ = math.cos(ref.theta), math.sin(ref.theta)
+            R = np.array([[c, -s_], [s_, c]])
+            P = R.T @ track.covariances[h, :2, :2] @ R
+            v = np.array([err.x, err.y])
+            if np.all(np.isfinite(P)):
+                d2 = float(v @ np.linalg.solve(P, v))
+        wrong = bool(reliable and d2 > CHI2_3SIGMA_2DOF)
+        out.append(
+            RelationResult(
+                "track" if both else "track+map",
+                n,
+                kind,
+                math.hypot(e.x, e.y),
+                abs(math.degrees(e.theta)),
+                reliable,
+                wrong,
+                sec,
+                d2,
+            )
+        )
     return out
 
 
@@ -186,7 +213,10 @@ def compare_with_map(track: MapTrack, full: MapResult) -> dict[str, float]:
     Returns ``n``, ``position_rmse_cm``, ``position_median_cm``, ``position_p95_cm``, ``heading_rmse_deg``,
     ``beyond_3sigma`` (count among unflagged results: squared Mahalanobis distance of the position difference
     under the tracker's 2×2 position covariance above the 2-dof χ² 3σ quantile, 11.83), ``unflagged``,
-    ``beyond_3sigma_rate`` (of the unflagged), and ``sigma_position_median_cm`` (the tracker's largest position σ).
+    ``beyond_3sigma_rate`` (of the unflagged), ``sigma_position_median_cm`` (the tracker's largest position σ),
+    the same RMSEs over the unflagged only, and ``maps_difference_rmse_cm``: the two maps' position difference on
+    the kept scans (how far the map of the rest and the map of all scans disagree by themselves: the part of the
+    difference that is not the tracker's).
     """
     ref = np.asarray(full.scan_poses)[track.held]
     d = track.poses[:, :2] - ref[:, :2]
@@ -203,7 +233,9 @@ def compare_with_map(track: MapTrack, full: MapResult) -> dict[str, float]:
         if unflagged[k] and float(d[k] @ np.linalg.solve(P, d[k])) > CHI2_3SIGMA_2DOF:
             beyond += 1
     nu = int(unflagged.sum())
+    km = np.asarray(track.map.scan_poses)[:, :2] - np.asarray(full.scan_poses)[track.kept, :2]
     return {
+        "maps_difference_rmse_cm": 100.0 * math.sqrt(float(np.mean(np.sum(km**2, axis=1)))),
         "unflagged_position_rmse_cm": 100.0 * math.sqrt(float(np.mean(dist[unflagged] ** 2))) if nu else math.nan,
         "unflagged_heading_rmse_deg": math.degrees(math.sqrt(float(np.mean(dth[unflagged] ** 2)))) if nu else math.nan,
         "n": len(d),
