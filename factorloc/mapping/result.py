@@ -46,7 +46,9 @@ class Closure:
     ``used_global`` whether its global search ran (no usable seed from the graph); ``seed`` the graph's relative
     pose when proposed and ``seed_sigma_m`` its largest position σ. ``weight`` is the back end's final weight
     of the added factor (1 inlier, 0 rejected by GNC; NaN when not added because the step called it
-    unreliable); ``accepted`` = reliable and weight ≥ 0.5.
+    unreliable); ``accepted`` = reliable and weight ≥ 0.5. When the step answered with part of the pose only
+    (e.g. the position, its heading unconstrained), the closure is unreliable, ``T_from_to`` is the seed and
+    ``covariance`` the step's covariance of the components it measured.
     """
 
     place_from: int
