@@ -9,6 +9,12 @@ Usage::
     taskset -c 0 .venv/bin/python benchmarks/bench_map.py --log intel # on one core (the ≤ 90 s target)
     .venv/bin/python benchmarks/bench_map.py --log aces --max-scans 2000 --set loop_every=2
     .venv/bin/python benchmarks/bench_map.py --log mit --pairwise     # + today's pairwise "ours" (minutes)
+    .venv/bin/python benchmarks/bench_map.py --log intel --track-every 10  # localizing in the map (issue 19.3)
+
+``--track-every K`` holds back every K-th scan, maps the rest, tracks the held-back scans through that map with
+the :class:`~factorloc.places.Tracker` (:mod:`factorloc.evaluation.map_tracking`) and reports the relations metric
+over the relations with a held-back end, the share flagged / lost, the agreement with the map of all scans and the
+share of unflagged results beyond 3σ of the tracker's covariance, and the tracking latency.
 
 ``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings).
 """
@@ -19,6 +25,7 @@ import argparse
 import ast
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +74,13 @@ def main() -> None:
     ap.add_argument("--max-scans", type=int, default=None, help="map only the first N scans (and their relations)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a MapConfig field")
     ap.add_argument("--pairwise", action="store_true", help="also run today's pairwise 'ours' on every relation")
+    ap.add_argument("--track-every", type=int, default=None, metavar="K", help="hold back every K-th scan and track it")
+    ap.add_argument(
+        "--place-covariance",
+        choices=("marginal", "none", "both"),
+        default="both",
+        help="with --track-every: the places carry the map's marginal covariance, none (poses taken as exact), or both runs",
+    )
     ap.add_argument("--json", type=Path, default=None, help="write the summary rows and stats as JSON")
     args = ap.parse_args()
     name = NAMES[args.log]
@@ -74,6 +88,10 @@ def main() -> None:
     rel = read_relations(args.data / f"{name}.relations")
     log, rel = _prefix(log, rel, args.max_scans)
     config = MapConfig(**_overrides(args.set))
+    if args.track_every is not None:
+        variants = ["marginal", "none"] if args.place_covariance == "both" else [args.place_covariance]
+        _track(log, rel, config, args.track_every, name, args.json, variants)
+        return
     t0, c0 = time.perf_counter(), time.process_time()
     result = build_map(log, config)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -106,6 +124,52 @@ def main() -> None:
                 {"rows": table, "stats": s, "wall_s": wall, "cpu_s": cpu, "mahalanobis2_median": float(np.median(d2))}, indent=1
             )
         )
+
+
+def _track(
+    log: LaserLog, rel: Relations, config: MapConfig, every: int, name: str, out: Path | None, variants: list[str]
+) -> None:
+    """Issue 19, item 3: the held-back scans tracked in the map of the rest (see the module docstring)."""
+    from factorloc.evaluation.map_tracking import compare_with_map, track_in_map, track_relations
+
+    t0 = time.perf_counter()
+    full = build_map(log, config)
+    full_s = time.perf_counter() - t0
+    reduced = None
+    summary = {}
+    for variant in variants:
+        track = track_in_map(log, every, config, place_covariance=variant == "marginal", map_result=reduced)
+        if reduced is None:
+            reduced, map_s = track.map, track.map_seconds
+        rows = track_relations(track, rel, log)
+        same = {r.index for r in rows}  # the map of all scans on the same relations
+        full_rows = [
+            replace(r, method="map_all_scans") for r in map_relations(full, rel, log, covariance=False) if r.index in same
+        ]
+        table = summarize(rows + full_rows, name)
+        print(f"\n== places with covariance: {variant}")
+        print(format_table(table))
+        cmp = compare_with_map(track, full)
+        n = len(track.results)
+        lat = 1000.0 * track.seconds
+        print(
+            f"{n} of {len(log.scans)} scans held back (every {every}th), tracked in the map of the other "
+            f"{len(track.kept)} ({len(track.map)} places, mapped in {map_s:.1f} s); states {track.states()}; "
+            f"flagged {100 * track.flagged.mean():.1f} %, lost {100 * track.lost.mean():.1f} %"
+        )
+        print(
+            f"against the map of all scans ({full_s:.1f} s): position RMSE {cmp['position_rmse_cm']:.2f} cm "
+            f"(median {cmp['position_median_cm']:.2f}, p95 {cmp['position_p95_cm']:.2f}), heading RMSE "
+            f"{cmp['heading_rmse_deg']:.2f} deg; unflagged only: position RMSE {cmp['unflagged_position_rmse_cm']:.2f} cm, "
+            f"heading RMSE {cmp['unflagged_heading_rmse_deg']:.2f} deg; beyond 3σ of the tracker's covariance: "
+            f"{cmp['beyond_3sigma']} of {cmp['unflagged']} unflagged ({100 * cmp['beyond_3sigma_rate']:.2f} %); "
+            f"tracker position σ median {cmp['sigma_position_median_cm']:.2f} cm; the two maps differ on the kept scans by "
+            f"{cmp['maps_difference_rmse_cm']:.2f} cm RMSE"
+        )
+        print(f"tracking latency median {np.median(lat):.1f} ms (p95 {np.percentile(lat, 95):.1f}, max {lat.max():.1f})")
+        summary[variant] = {"rows": table, "compare": cmp, "states": track.states(), "latency_ms_median": float(np.median(lat))}
+    if out is not None:
+        out.write_text(json.dumps(summary, indent=1))
 
 
 if __name__ == "__main__":

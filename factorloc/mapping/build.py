@@ -279,7 +279,8 @@ class _Builder:
                 est = estimate(self.refs[i], self.points[j], hyp, icp)
             self.seconds["icp"] += time.perf_counter() - t0
             ok = _full_position(est)
-            T_ij = Pose2.from_array(est.values)
+            # a partial answer (e.g. the heading alone) measures no pose: recorded at the seed, unreliable
+            T_ij = Pose2.from_array(est.values) if est.kind == "full" else seed_T
             used_global = bool(est.diagnostics.get("used_global_init", False))
             cov = np.array(est.covariance)
             self.closures.append(Closure(i, j, T_ij, cov, ok, est.reason, est.checks, used_global, seed_T, sigma))
