@@ -68,9 +68,8 @@ def test_a_dense_query_scan_is_thinned_with_a_note_and_still_localizes():
     s = generate_scenario(apartment(), n_queries=1, seed=5)
     q = s.queries[0]
     rng = np.random.default_rng(0)
-    scan = q.query.scan.points_m if q.query.scan is not None else None
-    if scan is None:
-        pytest.skip("the generated query has no scan")
+    assert q.query.scan is not None, "every simulated query carries a laser scan"
+    scan = q.query.scan.points_m
     dense = scan[rng.integers(0, len(scan), 3 * MAX_SCAN_POINTS)] + rng.normal(0.0, 0.003, (3 * MAX_SCAN_POINTS, 2))
     loc = fl.localize(s.reference, fl.Query(scan=fl.Scan(dense), odometry=q.query.odometry))
     icp = next(r for r in loc.steps if r.name == "icp")
