@@ -42,6 +42,7 @@ import statistics
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -256,6 +257,20 @@ def bench_sim_accuracy(n: int) -> None:
         print(tr.row(f"correl. {label}"))
 
 
+def _compass_then_correlation(prepared: dict, name: str, cfg: Any, ref: Any, case: Any, hyp: Hypotheses) -> tuple:
+    """The compass (variant ``name``) then the correlation seeded by it, each reference prepared once per variant:
+    ``(compass estimate, correlation estimate, compass CPU s, correlation CPU s)``."""
+    key = (name, case.reference_id)
+    if key not in prepared:
+        prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
+    pc, pr = prepared[key]
+    t0 = time.process_time()
+    ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
+    t1 = time.process_time()
+    er = correlation.estimate(ref, case.query, hyp.plus(ec), prepared=pr)
+    return ec, er, t1 - t0, time.process_time() - t1
+
+
 def bench_scenario(directory: Path, max_queries: int) -> None:
     """Per-step CPU time, availability, accuracy and heading NEES on a scenario, default vs full-scale compass."""
     import cv2
@@ -278,16 +293,8 @@ def bench_scenario(directory: Path, max_queries: int) -> None:
         ref = data.reference_of(case)
         hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
         for name, cfg in variants.items():
-            key = (name, case.reference_id)
-            if key not in prepared:
-                prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
-            pc, pr = prepared[key]
-            t0 = time.process_time()
-            ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
-            t1 = time.process_time()
-            er = correlation.estimate(ref, case.query, hyp.plus(ec), prepared=pr)
-            t2 = time.process_time()
-            for step, est, sec in (("compass", ec, t1 - t0), ("correlation", er, t2 - t1)):
+            ec, er, sec_c, sec_r = _compass_then_correlation(prepared, name, cfg, ref, case, hyp)
+            for step, est, sec in (("compass", ec, sec_c), ("correlation", er, sec_r)):
                 err = math.remainder(est.value("theta") - case.truth.theta, 2 * math.pi)
                 rows[(name, step)].append((sec, est.reliable, err, est.sigma("theta")))
     print(f"\n== scenario {directory} ({len(rows[('default', 'compass')])} queries), seeded as in the pipeline ==")
@@ -443,17 +450,9 @@ def bench_pose(directories: list[Path], max_queries: int) -> None:
             dist = math.hypot(case.truth.x - ref.T_world_reference.x, case.truth.y - ref.T_world_reference.y)
             hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
             for name, cfg in variants.items():
-                key = (name, case.reference_id)
-                if key not in prepared:
-                    prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
-                pc, pr = prepared[key]
-                t0 = time.process_time()
-                ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
-                t1 = time.process_time()
-                er = correlation.estimate(ref, case.query, hyp.plus(ec), prepared=pr)
-                t2 = time.process_time()
-                tallies[f"{name} / compass"].add(ec, case.truth, t1 - t0, dist)
-                tallies[f"{name} / correlation"].add(er, case.truth, t2 - t1, dist)
+                ec, er, sec_c, sec_r = _compass_then_correlation(prepared, name, cfg, ref, case, hyp)
+                tallies[f"{name} / compass"].add(ec, case.truth, sec_c, dist)
+                tallies[f"{name} / correlation"].add(er, case.truth, sec_r, dist)
             if ("orb", case.reference_id) not in prepared:
                 prepared[("orb", case.reference_id)] = OrbVote(ref)
             t0 = time.process_time()
