@@ -34,6 +34,8 @@ import math
 import resource
 import sys
 import time
+import uuid
+import weakref
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -151,13 +153,15 @@ class _Batch:
     config: Config
     steps: Sequence[Step] | None
     seeded: bool
+    token: str = field(default_factory=lambda: uuid.uuid4().hex)
     localizers: dict[str, Localizer] = field(default_factory=dict)
 
     def __reduce__(self) -> tuple[Any, ...]:
         # sent without the process's own localizers: a prepared reference holds native objects that cannot be
         # pickled (small_gicp's KdTree), and a Dask worker that fetches this batch from another worker after
-        # that one used it would otherwise fail the transfer and wait on it for ever
-        return (_Batch, (self.references, self.config, self.steps, self.seeded))
+        # that one used it would otherwise fail the transfer and wait on it for ever. A process that receives
+        # the batch again gets the copy it already holds back (:func:`_restore_batch`), localizers included
+        return (_restore_batch, (self.references, self.config, self.steps, self.seeded, self.token))
 
     def localizer(self, reference_id: str) -> tuple[Localizer, bool]:
         """The process's :class:`Localizer` of ``reference_id`` and whether it was prepared just now."""
@@ -166,6 +170,21 @@ class _Batch:
             return loc, False
         loc = self.localizers[reference_id] = Localizer(self.references[reference_id], self.config, steps=self.steps)
         return loc, True
+
+
+#: The batches this process holds, by token: a copy received again is the same object (each reference prepared
+#: once per process); weak, so a finished batch goes with its localizers.
+_BATCHES: weakref.WeakValueDictionary[str, _Batch] = weakref.WeakValueDictionary()
+
+
+def _restore_batch(
+    references: Mapping[str, Reference], config: Config, steps: Sequence[Step] | None, seeded: bool, token: str
+) -> _Batch:
+    """Unpickling a :class:`_Batch`: this process's copy of it when it has one, else a new one."""
+    batch = _BATCHES.get(token)
+    if batch is None:
+        batch = _BATCHES[token] = _Batch(references, config, steps, seeded, token)
+    return batch
 
 
 def _localize_chunk(chunk: Sequence[Case], batch: _Batch) -> list[_Localized | TaskFailure]:

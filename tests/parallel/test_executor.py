@@ -104,3 +104,6 @@ def test_the_shared_batch_pickles_after_a_process_prepared_its_references() -> N
     assert fresh and batch.localizers
     copy = pickle.loads(pickle.dumps(batch))
     assert copy.localizers == {} and copy.seeded and set(copy.references) == set(batch.references)
+    # a process that receives the same batch again keeps the one it has (and its preparations)
+    again = pickle.loads(pickle.dumps(batch))
+    assert again is copy and again.token == batch.token
