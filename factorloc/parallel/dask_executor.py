@@ -48,12 +48,25 @@ def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence
     return list(check_results(fn(chunk, shared), chunk))
 
 
-def _warm_up_worker() -> float:
-    """Load the compiled kernels in a worker (:func:`factorloc.jit.warm_up`): its first query is then timed
-    without numba's cache load, as in a warm process."""
-    from factorloc import jit
+def _one_thread_per_task(warm_up: bool) -> None:
+    """What every worker process does when it joins: one native thread per task, then (``warm_up``) the
+    compiled kernels loaded (:func:`factorloc.jit.warm_up`) so that no query's time includes numba's cache load.
 
-    return jit.warm_up()
+    Dask's nanny sets ``OMP_NUM_THREADS=1`` (and the BLAS variables) before a worker starts, but OpenCV's
+    wheels use their own pthreads pool, sized to the machine's cores and blind to those variables: without
+    ``cv2.setNumThreads(1)`` two workers on two cores run four OpenCV threads. The worker runs its tasks
+    concurrently on its own threads (``threads_per_worker``), which is where the parallelism is.
+    """
+    try:
+        import cv2
+    except ImportError:  # pragma: no cover - a dependency of factorloc
+        pass
+    else:
+        cv2.setNumThreads(1)
+    if warm_up:
+        from factorloc import jit
+
+        jit.warm_up()
 
 
 def _import_distributed() -> Any:
@@ -83,7 +96,8 @@ class DaskExecutor:
         (Dask's ``distributed.scheduler.allowed-failures``; its default is 3).
     warm_up
         Load the compiled kernels in every worker when the executor starts (:func:`factorloc.jit.warm_up`,
-        about a second each once numba's cache exists), so that no query's time includes it.
+        about a second each once numba's cache exists), so that no query's time includes it. Every worker,
+        warmed up or not, runs OpenCV with one thread (:func:`_one_thread_per_task`).
 
     Notes
     -----
@@ -145,8 +159,9 @@ class DaskExecutor:
                 # every worker up before anything is broadcast: a worker that joins later would fetch the shared
                 # object from another worker instead of holding its own copy
                 self._client.wait_for_workers(self.n_workers, timeout=120)
-            if self.warm_up:
-                self._client.run(_warm_up_worker)
+            from factorloc.parallel._dask_plugin import WorkerSetup  # imports distributed
+
+            self._client.register_plugin(WorkerSetup(self.warm_up), name=WorkerSetup.name)
         except BaseException:
             self.close()
             raise

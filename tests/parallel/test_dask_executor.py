@@ -126,3 +126,16 @@ def test_a_dying_worker_is_reported_and_the_batch_finishes(dask2: DaskExecutor) 
     assert [r for r in out if not isinstance(r, TaskFailure)] == [1, 2, 5, 6]
     failed = [r for r in out if isinstance(r, TaskFailure)]
     assert len(failed) == 2 and all(f.worker_died for f in failed) and "KilledWorker" in failed[0].error
+
+
+def _opencv_threads() -> int:
+    import cv2
+
+    return int(cv2.getNumThreads())
+
+
+def test_every_worker_runs_opencv_on_one_thread_also_one_that_replaced_a_dead_one(dask2: DaskExecutor) -> None:
+    # after the dying-worker test above the nanny has started a new worker process: the plugin set it up too
+    dask2.client.wait_for_workers(2, timeout=120)
+    threads = dask2.client.run(_opencv_threads)
+    assert len(threads) == 2 and set(threads.values()) == {1}
