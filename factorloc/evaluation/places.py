@@ -173,30 +173,11 @@ def recognition_recall(
 def simulated_place_map(
     world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
 ) -> PlaceMap:
-    """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
-    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading.
+    """A place on every free node of a ``spacing_m`` grid of a simulated world: :func:`factorloc.sim.track.grid_places`
+    (kept here for the callers of the first version; :func:`factorloc.sim.track.room_places` puts places in rooms)."""
+    from factorloc.sim.track import grid_places
 
-    With ``panorama_width_px`` > 0 each place also holds a rendered 360° panorama of that width
-    (:func:`factorloc.sim.render_panorama`, camera at 1 m). Each place's covariance is the simulator's per-scan
-    sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
-    ``SCAN_POSE_SIGMA_RAD``): the scan was taken from a pose that far from the one the map states."""
-    from factorloc.sim import render_panorama, render_scan
-    from factorloc.sim.laser import SCAN_POSE_SIGMA_M, SCAN_POSE_SIGMA_RAD
-
-    cov = np.diag([SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_RAD**2])
-    rng = np.random.default_rng(seed)
-    x0, y0, x1, y1 = world.bounds_xy  # type: ignore[attr-defined]
-    xs = np.arange(x0 + spacing_m / 2, x1, spacing_m)
-    ys = np.arange(y0 + spacing_m / 2, y1, spacing_m)
-    grid = np.array([(x, y) for y in ys for x in xs])
-    free = grid[world.is_free(grid, clearance_m)]  # type: ignore[attr-defined]
-    places = []
-    for n, (x, y) in enumerate(free):
-        T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
-        scan = render_scan(world, T, rng=rng)  # type: ignore[arg-type]
-        pano = render_panorama(world, T, width_px=panorama_width_px) if panorama_width_px > 0 else None  # type: ignore[arg-type]
-        places.append(Place(f"g{n:03d}", Reference(panorama=pano, scan=scan, T_world_reference=T), T, cov))
-    return PlaceMap(places)
+    return grid_places(world, spacing_m, seed, clearance_m, panorama_width_px=panorama_width_px)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -254,32 +235,6 @@ def simulated_recall(
     return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)
 
 
-def _free_segment(world: object, a: np.ndarray, b: np.ndarray, clearance_m: float) -> bool:
-    n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.05)) + 1)
-    pts = a[None] + np.linspace(0.0, 1.0, n)[:, None] * (b - a)[None]
-    return bool(np.all(world.is_free(pts, clearance_m)))  # type: ignore[attr-defined]
-
-
-def _leg(world: object, start: Pose2, length_m: float, rng: np.random.Generator, clearance_m: float) -> np.ndarray:
-    """A collision-free waypoint path of at least ``length_m`` from ``start`` (N×3, ≤ 5 cm apart)."""
-    from factorloc.sim.motion import waypoint_trajectory
-
-    wps: list = [start]
-    here, total = start.translation, 0.0
-    while total < length_m:
-        for _ in range(4000):
-            r, a = rng.uniform(0.5, 4.0), rng.uniform(-math.pi, math.pi)
-            p = here + r * np.array([math.cos(a), math.sin(a)])
-            if bool(world.is_free(p[None], clearance_m)[0]) and _free_segment(world, here, p, clearance_m):  # type: ignore[attr-defined]
-                break
-        else:
-            raise InputError(f"no reachable waypoint within 4 m of {here.tolist()} after 4000 draws")
-        total += float(np.linalg.norm(p - here))
-        wps.append((float(p[0]), float(p[1])))
-        here = p
-    return waypoint_trajectory(wps, step_m=0.05, step_rad=0.05)
-
-
 def simulated_track(
     world: object,
     place_map: PlaceMap,
@@ -290,53 +245,11 @@ def simulated_track(
     spacing_m: float = 0.25,
     clearance_m: float = 0.35,
 ) -> object:
-    """A robot driving through a simulated world, a 360° laser scan every ``spacing_m`` of travel (turns count
-    0.3 m/rad): a :class:`~factorloc.datasets.Scenario` whose references are ``place_map``'s places and whose
-    queries, in time order, carry one continuous odometry run (:func:`factorloc.sim.simulate_odometry`'s drift,
-    restarted from the odometry's last pose after a kidnapping so that the odometry does not see it) and the truth.
+    """A robot driving random legs through a simulated world: :func:`factorloc.sim.track.random_track` (kept here for
+    the callers of the first version; :func:`factorloc.sim.track.generate_track` tours the rooms)."""
+    from factorloc.sim.track import random_track
 
-    ``kidnaps`` times the robot is carried to a random free pose between two queries (tag ``kidnapped`` on the
-    first query after it). Each query names its nearest place as ``reference_id``. Reproducible from ``seed``.
-    """
-    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference
-    from factorloc.sim import render_scan
-    from factorloc.sim.motion import sample_free_pose, simulate_odometry
-
-    rng = np.random.default_rng(seed)
-    if n_queries < 2:
-        raise InputError(f"n_queries must be >= 2, got {n_queries!r}")
-    cuts = sorted(rng.choice(np.arange(10, n_queries - 5), size=kidnaps, replace=False).tolist()) if kidnaps else []
-    bounds = [0, *cuts, n_queries]
-    pos = place_map.positions_m()
-    queries = []
-    odo_end: Pose2 | None = None
-    start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
-    for s, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-        n = b - a
-        path = _leg(world, start, spacing_m * n + 1.0, rng, clearance_m)
-        steps = np.hypot(np.diff(path[:, 0]), np.diff(path[:, 1])) + 0.3 * np.abs(np.diff(np.unwrap(path[:, 2])))
-        arc = np.concatenate([[0.0], np.cumsum(steps)])
-        idx = np.minimum(np.searchsorted(arc, spacing_m * np.arange(n)), len(path) - 1)
-        run = simulate_odometry(path[: idx[-1] + 1], rng)
-        T0 = Pose2.from_array(run.poses[0])
-        for j, i in enumerate(idx):
-            truth = Pose2.from_array(path[i])
-            rel = T0.between(Pose2.from_array(run.poses[i]))
-            T_odo = rel if odo_end is None else odo_end.compose(rel)
-            o = run.odometry(int(i))
-            k = a + j
-            q = Query(
-                scan=render_scan(world, truth, rng=rng),  # type: ignore[arg-type]
-                odometry=Odometry(T_odo, o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad),
-                id=f"q{k:04d}",
-            )
-            nearest = place_map.ids[int(np.argmin(np.hypot(*(pos - truth.translation).T)))]
-            faults = ("kidnapped",) if (s > 0 and j == 0) else ()
-            queries.append(ScenarioQuery(q, float(k), truth, faults, nearest))
-        odo_end = queries[-1].query.odometry.T_world_robot  # type: ignore[union-attr]
-        start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
-    refs = tuple(ScenarioReference(p.id, p.reference) for p in place_map)
-    return Scenario(f"track-{seed}", refs, tuple(queries), seed=seed, metadata={"kidnaps": kidnaps, "spacing_m": spacing_m})
+    return random_track(world, place_map, n_queries, seed, kidnaps=kidnaps, spacing_m=spacing_m, clearance_m=clearance_m)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------
