@@ -445,6 +445,15 @@ def _faulted_query(
     return Query(panorama=pano, scan=scan, odometry=odometry, id=qid), tags, meta
 
 
+def _visits(rooms_of_queries: Sequence[str | None]) -> list[str]:
+    """The rooms the queries were in, in order, a run of queries in one room counted once."""
+    out: list[str] = []
+    for r in rooms_of_queries:
+        if r is not None and (not out or out[-1] != r):
+            out.append(r)
+    return out
+
+
 def _kidnap_pose(tour: _Tour, current: str | None) -> Pose2:
     others = [r for r in tour.rooms if r != current] or list(tour.rooms)
     room = others[int(tour.rng.integers(len(others)))]
@@ -466,7 +475,8 @@ def generate_track(
 ) -> Scenario:
     """A robot touring the rooms of ``world`` (see the module): a :class:`~factorloc.datasets.Scenario` whose
     references are ``place_map``'s places and whose ``n_queries`` queries, in time order, carry one continuous
-    odometry run, the truth, the room (``metadata["room"]``) and each its nearest place as ``reference_id``.
+    odometry run, the truth, the room (``metadata["room"]``) and each its nearest place as ``reference_id``; the
+    scenario's ``metadata["rooms_visited"]`` lists the rooms the queries were in, in order.
 
     The tour starts at a random free pose; ``kidnaps`` times (between queries 10 and ``n_queries`` − 5) the robot
     is carried to a random free pose of another room (tag ``kidnapped`` on the first query after it). Reproducible
@@ -526,7 +536,7 @@ def generate_track(
         "faults": list(config.faults),
         "fault_probability": config.fault_probability,
         "panorama_width_px": config.panorama_width_px,
-        "rooms_visited": [r for r in tour.visited if r],
+        "rooms_visited": _visits([q.metadata["room"] for q in queries]),
     }
     return Scenario(
         name or f"{w.name}-track-seed{seed}",
