@@ -91,3 +91,7 @@ def test_simulate_track_writes_a_tour_that_track_follows_through_a_kidnapping(tm
     assert back, [(r["state"], r["pose"]) for r in rows[k : k + 3]]  # re-localized within 3 queries of the kidnapping
     after = np.array([[r["pose"]["x_m"], r["pose"]["y_m"]] for r in rows[back[0] :]])
     assert np.max(np.hypot(*(after - truth[back[0] :, :2]).T)) < 0.1  # and tracking from there on
+    report = tmp_path / "report.json"
+    res = CliRunner().invoke(app, ["evaluate", str(out), "--json", str(report)])  # one query against its nearest place
+    assert res.exit_code == 0, res.output
+    assert json.loads(report.read_text())["queries_with_truth"] == 20

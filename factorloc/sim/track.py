@@ -490,6 +490,10 @@ def generate_track(
         raise InputError(f"world must be a factorloc.sim.World or a world name/file, got {type(world).__name__}")
     if isinstance(n_queries, bool) or not isinstance(n_queries, int) or n_queries < 2:
         raise InputError(f"n_queries must be an integer >= 2, got {n_queries!r}")
+    from factorloc.places import PlaceMap
+
+    if not isinstance(place_map, PlaceMap):
+        raise InputError(f"place_map must be a factorloc.PlaceMap, got {type(place_map).__name__}")
     if not len(place_map):
         raise InputError("place_map has no places")
     rng = np.random.default_rng(seed)
