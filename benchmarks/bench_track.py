@@ -12,11 +12,16 @@ undetermined or two queries went without a reliable estimate, against the top-5 
 heading from Scan Context). MCL's figures count every determined result (it has no flag); CPU time is
 ``time.process_time`` per query, hierarchy runs included, for both.
 
+``--tour`` uses the multi-place worlds instead (:mod:`factorloc.sim.track`): places in every room of ``--world``
+(``apartment`` or ``office``, a grid of ``--place-spacing`` m in each room) and a robot touring the rooms through the
+doors (:func:`factorloc.sim.track.generate_track`, occlusion on 10 % of the queries, kidnappings to another room).
+
 Usage::
 
     nice -n 10 .venv/bin/python benchmarks/bench_track.py                       # seeds 1..3, 200 queries, 3 kidnaps
     nice -n 10 .venv/bin/python benchmarks/bench_track.py --seeds 1 2 3 4 5 --queries 120
     nice -n 10 .venv/bin/python benchmarks/bench_track.py --seeds 1 --mcl       # beside Monte Carlo
+    nice -n 10 .venv/bin/python benchmarks/bench_track.py --tour --world office --seeds 1 2 3 --mcl
 """
 
 from __future__ import annotations
@@ -26,29 +31,47 @@ import json
 import time
 from pathlib import Path
 
-from factorloc.evaluation.places import choice_recall, simulated_place_map, simulated_track, track_figures
+from factorloc.evaluation.places import choice_recall, mcl_track, simulated_place_map, simulated_track, track_figures
 from factorloc.places import Tracker, TrackerConfig
 
 
+def _scenario(args: argparse.Namespace, world, place_map, seed: int):  # noqa: ANN001, ANN202 - the benchmark's own objects
+    if not args.tour:
+        return simulated_track(world, place_map, args.queries, seed, kidnaps=args.kidnaps)
+    from factorloc.sim.track import generate_track
+
+    return generate_track(world, place_map, args.queries, seed, kidnaps=args.kidnaps)
+
+
 def main() -> None:
-    from factorloc.sim import apartment
+    from factorloc.sim import world_by_name
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="*", default=[1, 2, 3])
     ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("--kidnaps", type=int, default=3)
     ap.add_argument("--mcl", action="store_true", help="also the Monte Carlo baseline on the same queries")
+    ap.add_argument("--particles", type=int, default=2000, help="the Monte Carlo baseline's particles")
+    ap.add_argument("--tour", action="store_true", help="places in every room and a tour of the rooms (factorloc.sim.track)")
+    ap.add_argument("--world", default="apartment", help="with --tour: apartment or office (or a world file)")
+    ap.add_argument("--place-spacing", type=float, default=1.5, help="with --tour: grid spacing of the places in a room (m)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    world = apartment()
-    place_map = simulated_place_map(world, 1.0, seed=0)
+    world = world_by_name(args.world if args.tour else "apartment")
+    if args.tour:
+        from factorloc.sim.track import room_places
+
+        place_map = room_places(world, args.place_spacing, seed=0)
+    else:
+        place_map = simulated_place_map(world, 1.0, seed=0)
+    print(f"{world.name}: {len(place_map)} places ({'rooms' if args.tour else 'grid'})")
     rows = []
     head = f"{'seed':>4} {'n':>4} {'RMSE cm':>8} {'RMSE deg':>8} {'all cm':>7} {'wrong':>6} {'flagged':>7}"
     head += f" {'kid':>4} {'rec3':>4} {'med ms':>7} {'choice':>7}"
     print(head)
     for seed in args.seeds:
         t0 = time.perf_counter()
-        sc = simulated_track(world, place_map, args.queries, 1000 + seed, kidnaps=args.kidnaps)
+        sc = _scenario(args, world, place_map, 1000 + seed)
         tracker = Tracker(place_map, TrackerConfig())
         c0 = time.process_time()
         results = [tracker.update(q.query) for q in sc.queries]
@@ -66,7 +89,7 @@ def main() -> None:
             flush=True,
         )
         if args.mcl:
-            m = run_mcl(world, place_map, sc, tracker)
+            m = mcl_track(sc, place_map, world.bounds_xy, particles=args.particles, tracker=tracker).to_dict()
             rows[-1]["mcl"] = m
             print(
                 f"     MCL: RMSE {100 * m['rmse_position_m']:.2f} cm {m['rmse_heading_deg']:.2f} deg, "
@@ -76,59 +99,6 @@ def main() -> None:
             )
     if args.json:
         args.json.write_text(json.dumps(rows, indent=2))
-
-
-def run_mcl(world, place_map, scenario, tracker) -> dict:  # noqa: ANN001 - the benchmark's own objects
-    """The Monte Carlo baseline on the same queries (see the module docstring); its figures."""
-    import math
-    from dataclasses import replace
-
-    import numpy as np
-
-    from factorloc.baselines.mcl import MonteCarloLocalization
-    from factorloc.places import places_in_view
-    from factorloc.places.tracker import _seed
-    from factorloc.types import Odometry
-
-    mcl = MonteCarloLocalization(2000, bounds_xy=world.bounds_xy, seed=0)
-    multi, recognizer, cfg = tracker.multi, tracker.recognizer, tracker.config
-    sq_pos, sq_th, good, starved, cpu = [], [], [], 2, 0.0
-    belief = None
-    for q in scenario.queries:
-        c0 = time.process_time()
-        reports = []
-        if belief is not None and starved < 2:
-            ids = [pid for pid, _ in places_in_view(place_map, belief.pose, belief.covariance, cfg.choice)]
-            if ids:
-                seeded = replace(q.query, odometry=_seed(belief.pose, belief.covariance))
-                reports = list(multi.localize(seeded, ids, use_odometry=False).localization.steps)
-        if not any(r.estimate is not None and r.estimate.reliable for r in reports):
-            for c in recognizer.candidates(q.query, cfg.relocalize_k):
-                p = place_map[c.place_id]
-                T = p.T_world_reference.compose(type(p.T_world_reference)(0.0, 0.0, c.theta_place_query_rad or 0.0))
-                odo = Odometry(T, cfg.relocalize_sigma_m, cfg.relocalize_sigma_m, cfg.relocalize_sigma_rad)
-                run = multi.run_place(replace(q.query, odometry=odo), c.place_id)
-                reports.extend(run.localization.steps[1:])  # the place's steps, not its (made-up) odometry seed
-        belief = mcl.update(q.query, reports)
-        cpu += time.process_time() - c0
-        starved = 0 if any(r.estimate is not None and r.estimate.reliable for r in reports) else starved + 1
-        if belief.undetermined:
-            belief = None
-            good.append(False)
-            continue
-        e = np.array([belief.pose.x - q.truth.x, belief.pose.y - q.truth.y])
-        eth = abs(math.remainder(belief.pose.theta - q.truth.theta, 2 * math.pi))
-        sq_pos.append(float(e @ e))
-        sq_th.append(eth * eth)
-        good.append(bool(math.hypot(*e) < 0.1 and eth < math.radians(1.0)))
-    kid = [i for i, q in enumerate(scenario.queries) if "kidnapped" in q.faults]
-    return {
-        "rmse_position_m": math.sqrt(np.mean(sq_pos)),
-        "rmse_heading_deg": math.degrees(math.sqrt(np.mean(sq_th))),
-        "kidnaps": len(kid),
-        "recovered_within_3": sum(any(good[j] for j in range(i, min(i + 3, len(good)))) for i in kid),
-        "cpu_s_per_query": cpu / len(scenario.queries),
-    }
 
 
 if __name__ == "__main__":

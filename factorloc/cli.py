@@ -316,22 +316,48 @@ def simulate(
     ] = 0.3,
     image_format: Annotated[str, typer.Option("--image-format", help="png (lossless) or jpg (small) query images.")] = "png",
     overwrite: Annotated[bool, typer.Option("--overwrite", help="Replace an existing scenario directory.")] = False,
+    track: Annotated[
+        bool,
+        typer.Option(
+            "--track",
+            help="A trajectory instead: places in every room (the references) and a robot touring the rooms "
+            "(queries in time order with one odometry run); faults: occlusion (lighting, blur with --panorama-width).",
+        ),
+    ] = False,
+    kidnaps: Annotated[int, typer.Option("--kidnaps", min=0, help="With --track: times the robot is carried elsewhere.")] = 0,
+    place_spacing: Annotated[
+        float, typer.Option("--place-spacing", min=0.1, help="With --track: grid spacing of the places in each room (m).")
+    ] = 1.5,
+    panorama_width: Annotated[
+        int,
+        typer.Option(
+            "--panorama-width", min=0, help="With --track: a 360° panorama of this width per place and query (0: laser only)."
+        ),
+    ] = 0,
 ) -> None:
-    """Render a simulated scenario (reference + queries with ground truth, drift and faults) into OUT_DIR."""
+    """Render a simulated scenario (reference + queries with ground truth, drift and faults) into OUT_DIR; with
+    --track, a tour of the world's rooms through places in every room, with kidnappings."""
     from factorloc.datasets import check_scenario_target, save_scenario
-    from factorloc.sim import GeneratorConfig, generate_scenario
 
     check_scenario_target(out_dir, overwrite, how="use --overwrite")  # before the rendering, not after
-    fault_list = _fault_list(faults)
-    with progress(console, eta=False, transient=False) as advance:
-        scen = generate_scenario(
-            world,
-            queries,
-            seed,
-            fault_list,
-            GeneratorConfig(fault_probability=fault_probability),
-            progress=lambda done, total: advance("rendering queries", done, total),
-        )
+    if track:
+        scen = _simulate_track(world, queries, seed, faults, fault_probability, kidnaps, place_spacing, panorama_width)
+    else:
+        from factorloc.sim import GeneratorConfig, generate_scenario
+
+        if kidnaps or panorama_width:
+            raise InputError(
+                "--kidnaps and --panorama-width go with --track (a scenario's kidnappings are the 'kidnapped' fault)"
+            )
+        with progress(console, eta=False, transient=False) as advance:
+            scen = generate_scenario(
+                world,
+                queries,
+                seed,
+                _fault_list(faults),
+                GeneratorConfig(fault_probability=fault_probability),
+                progress=lambda done, total: advance("rendering queries", done, total),
+            )
     path = save_scenario(scen, out_dir, image_format=image_format, overwrite=overwrite)
     size = sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
     n_faulted = sum(1 for q in scen.queries if q.faults)
@@ -339,6 +365,35 @@ def simulate(
         f"wrote [bold]{path}[/]: {len(scen.queries)} queries ({n_faulted} with faults), world '{scen.world.name}', "
         f"seed {seed}, {size / 1e6:.2f} MB"
     )
+
+
+def _simulate_track(
+    world: str, queries: int, seed: int, faults: str, fault_probability: float, kidnaps: int, spacing_m: float, width_px: int
+) -> Any:
+    """``simulate --track``: the places of every room and a tour through them (:func:`factorloc.sim.track.generate_track`)."""
+    from factorloc.sim import world_by_name
+    from factorloc.sim.track import TRACK_FAULTS, TrackConfig, generate_track, room_places
+
+    if faults.strip() == "all":
+        fault_list = tuple(f for f in TRACK_FAULTS if width_px > 0 or f == "occlusion")
+    else:
+        fault_list = _fault_list(faults)
+        if "kidnapped" in fault_list:
+            raise InputError("--faults: with --track the kidnappings are --kidnaps K, not the 'kidnapped' fault")
+    w = world_by_name(world)
+    config = TrackConfig(faults=fault_list, fault_probability=fault_probability, panorama_width_px=width_px)
+    with progress(console, eta=False, transient=False) as advance:
+        place_map = room_places(w, spacing_m, seed=seed, panorama_width_px=width_px)
+        advance("rendering places", 1, 1)
+        return generate_track(
+            w,
+            place_map,
+            queries,
+            seed,
+            kidnaps=kidnaps,
+            config=config,
+            progress=lambda done, total: advance("rendering queries", done, total),
+        )
 
 
 # ----------------------------------------------------------------------------

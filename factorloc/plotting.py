@@ -45,6 +45,9 @@ __all__ = [
     "plot_error_vs_distance_on_axes",
     "plot_estimates_on_axes",
     "plot_nees_on_axes",
+    "plot_places_on_axes",
+    "plot_track_errors_on_axes",
+    "plot_track_on_axes",
     "plot_world_on_axes",
     "save_report_figures",
 ]
@@ -354,6 +357,115 @@ def calibration_figure(report: EvaluationReport) -> Figure:
     plot_nees_on_axes(fig.add_subplot(), report)
     fig.suptitle(f"{report.name}: is the claimed covariance honest? ({report.strategy})")
     return fig
+
+
+# --------------------------------------------------------------------------
+# Places and tracks
+# --------------------------------------------------------------------------
+def plot_places_on_axes(ax: Axes, positions_xy: np.ndarray, labels: Sequence[str] = (), **kwargs: Any) -> Axes:
+    """The places of a map (black triangles at their N×2 positions, m), with ``labels`` beside them when given."""
+    pts = np.asarray(positions_xy, dtype=np.float64).reshape(-1, 2)
+    if labels and len(labels) != len(pts):
+        raise InputError(f"{len(labels)} labels for {len(pts)} places")
+    style = {"s": 28, "marker": "^", "color": "black", "label": "place", "zorder": 3}
+    style.update(kwargs)
+    ax.scatter(pts[:, 0], pts[:, 1], **style)
+    for (x, y), text in zip(pts, labels, strict=False):
+        ax.annotate(text, (x, y), xytext=(3, 3), textcoords="offset points", fontsize="x-small", color="#444444")
+    ax.set_aspect("equal")
+    return ax
+
+
+def _track_arrays(poses: np.ndarray, covariances: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    p = np.asarray(poses, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"poses must be N×3 [x_m, y_m, theta_rad], got shape {p.shape}")
+    if covariances is None:
+        return p, None
+    c = np.asarray(covariances, dtype=np.float64)
+    if c.shape != (len(p), 3, 3):
+        raise InputError(f"covariances must be N×3×3 with N = {len(p)}, got shape {c.shape}")
+    return p, c
+
+
+def plot_track_on_axes(
+    ax: Axes,
+    poses: np.ndarray,
+    covariances: np.ndarray | None = None,
+    *,
+    truth: np.ndarray | None = None,
+    states: Sequence[str] = (),
+    kidnapped: Sequence[int] = (),
+    confidence: float = 0.95,
+    ellipse_every: int = 1,
+    ellipse_scale: float = 1.0,
+    color: str = ESTIMATE_COLOR,
+    label: str = "estimate",
+) -> Axes:
+    """A tracked trajectory on the floor plan: the estimated path (``poses``, N×3 world frame, a NaN row where there
+    was no estimate: the line breaks there), the ``confidence`` ellipse of every ``ellipse_every``-th position
+    covariance (``covariances`` N×3×3, its x–y block, magnified by ``ellipse_scale``: the legend says so), the true
+    path (``truth`` N×3, blue), the ``kidnapped`` queries (dotted grey line from the true pose before to the one
+    after: the robot was carried) and, with ``states`` (N of ``tracking`` / ``relocalized`` / ``lost``), the
+    re-localizations (green diamonds) and the lost queries (hollow grey circles)."""
+    p, c = _track_arrays(poses, covariances)
+    if isinstance(ellipse_every, bool) or not isinstance(ellipse_every, int) or ellipse_every < 1:
+        raise InputError(f"ellipse_every must be an integer >= 1, got {ellipse_every!r}")
+    if states and len(states) != len(p):
+        raise InputError(f"{len(states)} states for {len(p)} poses")
+    cut = set(int(k) for k in kidnapped)
+    if truth is not None:
+        t, _ = _track_arrays(truth, None)
+        if len(t) != len(p):
+            raise InputError(f"truth has {len(t)} poses, the track {len(p)}")
+        t_line = t[:, :2].copy()
+        for k in cut:
+            if 0 < k < len(t):
+                ax.plot(t[k - 1 : k + 1, 0], t[k - 1 : k + 1, 1], ls=":", color="#777777", lw=1.2, zorder=2)
+        broken = np.insert(t_line, sorted(k for k in cut if 0 < k < len(t)), np.nan, axis=0)
+        ax.plot(broken[:, 0], broken[:, 1], color=TRUTH_COLOR, lw=1.2, label="truth", zorder=2)
+        if cut:
+            ax.plot([], [], ls=":", color="#777777", lw=1.2, label="kidnapped (carried)")
+    line = p[:, :2].copy()
+    line = np.insert(line, sorted(k for k in cut if 0 < k < len(p)), np.nan, axis=0)
+    ax.plot(line[:, 0], line[:, 1], color=color, lw=1.0, label=label, zorder=4)
+    if c is not None:
+        drawn = 0
+        for i in range(0, len(p), ellipse_every):
+            if np.all(np.isfinite(p[i, :2])) and np.all(np.isfinite(c[i, :2, :2])):
+                plot_covariance_ellipse_on_axes(ax, p[i, :2], (ellipse_scale**2) * c[i, :2, :2], confidence, ec=color, zorder=5)
+                drawn += 1
+        if drawn:
+            scale = "" if ellipse_scale == 1.0 else f" ×{ellipse_scale:g}"
+            ax.plot([], [], color=color, lw=1.0, label=f"{100 * confidence:.0f} % ellipse{scale}")
+    if states:
+        st = np.asarray([str(s) for s in states])
+        rel, lost = st == "relocalized", st == "lost"
+        ok = np.all(np.isfinite(p[:, :2]), axis=1)
+        if (rel & ok).any():
+            ax.scatter(p[rel & ok, 0], p[rel & ok, 1], s=50, marker="D", color="#2e9d5b", label="re-localized", zorder=6)
+        if (lost & ok).any():
+            ax.scatter(p[lost & ok, 0], p[lost & ok, 1], s=30, facecolors="none", edgecolors="#777777", label="lost", zorder=6)
+    ax.set_aspect("equal")
+    return ax
+
+
+def plot_track_errors_on_axes(
+    ax: Axes, poses: np.ndarray, truth: np.ndarray, *, kidnapped: Sequence[int] = (), color: str = ESTIMATE_COLOR, label: str = ""
+) -> Axes:
+    """Position error (cm, log scale) of a track against the query index; NaN poses (no estimate) leave gaps;
+    the ``kidnapped`` queries are dotted vertical lines."""
+    p, _ = _track_arrays(poses, None)
+    t, _ = _track_arrays(truth, None)
+    if len(t) != len(p):
+        raise InputError(f"truth has {len(t)} poses, the track {len(p)}")
+    err_cm = 100.0 * np.hypot(p[:, 0] - t[:, 0], p[:, 1] - t[:, 1])
+    ax.semilogy(np.arange(len(p)), np.maximum(err_cm, 1e-2), color=color, lw=1.0, marker=".", ms=3, label=label)
+    for k in kidnapped:
+        ax.axvline(int(k), color="#777777", ls=":", lw=1.0)
+    ax.set_xlabel("query")
+    ax.set_ylabel("position error (cm)")
+    return ax
 
 
 # --------------------------------------------------------------------------

@@ -58,3 +58,40 @@ def test_track_reports_a_bad_scenario_in_one_line(tmp_path: Path) -> None:
     res = CliRunner().invoke(app, ["track", str(tmp_path / "missing")])
     assert res.exit_code == 2
     assert "error:" in res.output and "Traceback" not in res.output
+
+
+def test_simulate_track_writes_a_tour_that_track_follows_through_a_kidnapping(tmp_path: Path) -> None:
+    from factorloc.datasets import load_scenario
+    from factorloc.sim import world_by_name
+    from factorloc.sim.track import room_of, rooms
+
+    out = tmp_path / "tour"
+    res = CliRunner().invoke(app, ["simulate", str(out), "--track", "--queries", "20", "--kidnaps", "1", "--seed", "5"])
+    assert res.exit_code == 0, res.output
+    scen = load_scenario(out)
+    world = world_by_name("apartment")
+    assert {room_of(world, r.reference.T_world_reference.translation)[0] for r in scen.references} == {r for r, _ in rooms(world)}
+    truth = np.array([q.truth.as_array() for q in scen.queries])
+    assert world.is_free(truth[:, :2], 0.25).all()
+    k = next(i for i, q in enumerate(scen.queries) if "kidnapped" in q.faults)
+    assert math.dist(truth[k, :2], truth[k - 1, :2]) > 1.0
+    odo = [q.query.odometry.T_world_robot for q in scen.queries]
+    assert math.dist(odo[k].translation, odo[k - 1].translation) < 0.3  # the odometry did not see it
+    lines = tmp_path / "track.jsonl"
+    res = CliRunner().invoke(app, ["track", str(out), "--jsonl", str(lines), "--tum", str(tmp_path / "est.tum")])
+    assert res.exit_code == 0, res.output
+    rows = [json.loads(x) for x in lines.read_text().splitlines()]
+    assert len(rows) == 20
+    back = [
+        j
+        for j in range(k, k + 3)
+        if rows[j]["state"] == "relocalized"
+        and math.hypot(rows[j]["pose"]["x_m"] - truth[j, 0], rows[j]["pose"]["y_m"] - truth[j, 1]) < 0.1
+    ]
+    assert back, [(r["state"], r["pose"]) for r in rows[k : k + 3]]  # re-localized within 3 queries of the kidnapping
+    after = np.array([[r["pose"]["x_m"], r["pose"]["y_m"]] for r in rows[back[0] :]])
+    assert np.max(np.hypot(*(after - truth[back[0] :, :2]).T)) < 0.1  # and tracking from there on
+    report = tmp_path / "report.json"
+    res = CliRunner().invoke(app, ["evaluate", str(out), "--json", str(report)])  # one query against its nearest place
+    assert res.exit_code == 0, res.output
+    assert json.loads(report.read_text())["queries_with_truth"] == 20

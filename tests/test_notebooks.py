@@ -26,9 +26,16 @@ def _notebooks() -> list[Path]:
 NOTEBOOKS = _notebooks()
 
 
-def test_the_five_notebooks_are_there() -> None:
+def test_the_six_notebooks_are_there() -> None:
     names = {p.name for p in NOTEBOOKS}
-    for n in ("01_quickstart", "02_fusion_strategies", "03_hierarchy_ablation", "04_faults_and_gating", "05_real_laser_logs"):
+    for n in (
+        "01_quickstart",
+        "02_fusion_strategies",
+        "03_hierarchy_ablation",
+        "04_faults_and_gating",
+        "05_real_laser_logs",
+        "06_tracking",
+    ):
         assert f"{n}.ipynb" in names
 
 

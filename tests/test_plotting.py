@@ -102,3 +102,36 @@ def test_save_report_figures_writes_four_pngs(report, tmp_path: Path) -> None:  
 
 def _rgb(hex_color: str) -> tuple[float, float, float]:
     return tuple(int(hex_color[i : i + 2], 16) / 255 for i in (1, 3, 5))  # type: ignore[return-value]
+
+
+def test_a_track_is_drawn_with_its_ellipses_at_the_stated_confidence_and_breaks_where_it_has_no_pose() -> None:
+    from factorloc.plotting import plot_places_on_axes, plot_track_errors_on_axes, plot_track_on_axes
+
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [np.nan, np.nan, np.nan], [3.0, 1.0, 0.5]])
+    covs = np.stack([np.diag([0.04, 0.01, 0.001])] * 4)
+    truth = poses.copy()
+    truth[2] = [2.0, 0.0, 0.0]
+    ax = Figure().add_subplot()
+    plot_track_on_axes(
+        ax, poses, covs, truth=truth, states=["relocalized", "tracking", "lost", "tracking"], kidnapped=[3], confidence=0.9
+    )
+    ellipses = [p for p in ax.patches if isinstance(p, Ellipse)]
+    assert len(ellipses) == 3  # not for the query without a pose
+    half_major = math.sqrt(0.04 * -2.0 * math.log(1.0 - 0.9))  # χ²₂⁻¹(p) = −2 ln(1 − p)
+    assert ellipses[0].width == pytest.approx(2.0 * half_major) and ellipses[0].height == pytest.approx(half_major)
+    labels = ax.get_legend_handles_labels()[1]
+    assert {"truth", "estimate", "90 % ellipse", "kidnapped (carried)", "re-localized"} <= set(labels)
+    est = next(line for line in ax.lines if line.get_label() == "estimate").get_xydata()
+    assert np.isnan(est[2]).all() and np.isnan(est[3]).all()  # the gap and the kidnapping both break the line
+    every_other = Figure().add_subplot()
+    plot_track_on_axes(every_other, poses, covs, ellipse_every=3, ellipse_scale=10.0)
+    ells = [p for p in every_other.patches if isinstance(p, Ellipse)]
+    assert len(ells) == 2 and ells[0].width == pytest.approx(10.0 * 2.0 * math.sqrt(0.04 * -2.0 * math.log(0.05)))
+    err_ax = plot_track_errors_on_axes(Figure().add_subplot(), poses, truth + np.array([0.03, 0.04, 0.0]), kidnapped=[3])
+    assert err_ax.lines[0].get_ydata()[0] == pytest.approx(5.0)  # cm
+    places = plot_places_on_axes(Figure().add_subplot(), np.array([[1.0, 2.0], [3.0, 4.0]]), ["a", "b"])
+    assert [t.get_text() for t in places.texts] == ["a", "b"]
+    with pytest.raises(InputError, match="covariances"):
+        plot_track_on_axes(Figure().add_subplot(), poses, covs[:2])
+    with pytest.raises(InputError, match="ellipse_every"):
+        plot_track_on_axes(Figure().add_subplot(), poses, covs, ellipse_every=0)

@@ -31,8 +31,10 @@ from factorloc.types import Odometry, Query, Reference
 __all__ = [
     "RecallResult",
     "SimulatedRecall",
+    "McTrack",
     "TrackFigures",
     "choice_recall",
+    "mcl_track",
     "correct_window_s",
     "places_along_log",
     "recognition_recall",
@@ -173,30 +175,11 @@ def recognition_recall(
 def simulated_place_map(
     world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
 ) -> PlaceMap:
-    """A place on every free node of a ``spacing_m`` grid of a simulated world, each with a 360° laser scan
-    (:func:`factorloc.sim.render_scan`, the simulator's real-lidar error model) taken at a random heading.
+    """A place on every free node of a ``spacing_m`` grid of a simulated world: :func:`factorloc.sim.track.grid_places`
+    (kept here for the callers of the first version; :func:`factorloc.sim.track.room_places` puts places in rooms)."""
+    from factorloc.sim.track import grid_places
 
-    With ``panorama_width_px`` > 0 each place also holds a rendered 360° panorama of that width
-    (:func:`factorloc.sim.render_panorama`, camera at 1 m). Each place's covariance is the simulator's per-scan
-    sensor pose error (``SCAN_POSE_SIGMA_M`` per axis,
-    ``SCAN_POSE_SIGMA_RAD``): the scan was taken from a pose that far from the one the map states."""
-    from factorloc.sim import render_panorama, render_scan
-    from factorloc.sim.laser import SCAN_POSE_SIGMA_M, SCAN_POSE_SIGMA_RAD
-
-    cov = np.diag([SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_M**2, SCAN_POSE_SIGMA_RAD**2])
-    rng = np.random.default_rng(seed)
-    x0, y0, x1, y1 = world.bounds_xy  # type: ignore[attr-defined]
-    xs = np.arange(x0 + spacing_m / 2, x1, spacing_m)
-    ys = np.arange(y0 + spacing_m / 2, y1, spacing_m)
-    grid = np.array([(x, y) for y in ys for x in xs])
-    free = grid[world.is_free(grid, clearance_m)]  # type: ignore[attr-defined]
-    places = []
-    for n, (x, y) in enumerate(free):
-        T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))
-        scan = render_scan(world, T, rng=rng)  # type: ignore[arg-type]
-        pano = render_panorama(world, T, width_px=panorama_width_px) if panorama_width_px > 0 else None  # type: ignore[arg-type]
-        places.append(Place(f"g{n:03d}", Reference(panorama=pano, scan=scan, T_world_reference=T), T, cov))
-    return PlaceMap(places)
+    return grid_places(world, spacing_m, seed, clearance_m, panorama_width_px=panorama_width_px)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -254,32 +237,6 @@ def simulated_recall(
     return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)
 
 
-def _free_segment(world: object, a: np.ndarray, b: np.ndarray, clearance_m: float) -> bool:
-    n = max(2, int(math.ceil(np.linalg.norm(b - a) / 0.05)) + 1)
-    pts = a[None] + np.linspace(0.0, 1.0, n)[:, None] * (b - a)[None]
-    return bool(np.all(world.is_free(pts, clearance_m)))  # type: ignore[attr-defined]
-
-
-def _leg(world: object, start: Pose2, length_m: float, rng: np.random.Generator, clearance_m: float) -> np.ndarray:
-    """A collision-free waypoint path of at least ``length_m`` from ``start`` (N×3, ≤ 5 cm apart)."""
-    from factorloc.sim.motion import waypoint_trajectory
-
-    wps: list = [start]
-    here, total = start.translation, 0.0
-    while total < length_m:
-        for _ in range(4000):
-            r, a = rng.uniform(0.5, 4.0), rng.uniform(-math.pi, math.pi)
-            p = here + r * np.array([math.cos(a), math.sin(a)])
-            if bool(world.is_free(p[None], clearance_m)[0]) and _free_segment(world, here, p, clearance_m):  # type: ignore[attr-defined]
-                break
-        else:
-            raise InputError(f"no reachable waypoint within 4 m of {here.tolist()} after 4000 draws")
-        total += float(np.linalg.norm(p - here))
-        wps.append((float(p[0]), float(p[1])))
-        here = p
-    return waypoint_trajectory(wps, step_m=0.05, step_rad=0.05)
-
-
 def simulated_track(
     world: object,
     place_map: PlaceMap,
@@ -290,53 +247,11 @@ def simulated_track(
     spacing_m: float = 0.25,
     clearance_m: float = 0.35,
 ) -> object:
-    """A robot driving through a simulated world, a 360° laser scan every ``spacing_m`` of travel (turns count
-    0.3 m/rad): a :class:`~factorloc.datasets.Scenario` whose references are ``place_map``'s places and whose
-    queries, in time order, carry one continuous odometry run (:func:`factorloc.sim.simulate_odometry`'s drift,
-    restarted from the odometry's last pose after a kidnapping so that the odometry does not see it) and the truth.
+    """A robot driving random legs through a simulated world: :func:`factorloc.sim.track.random_track` (kept here for
+    the callers of the first version; :func:`factorloc.sim.track.generate_track` tours the rooms)."""
+    from factorloc.sim.track import random_track
 
-    ``kidnaps`` times the robot is carried to a random free pose between two queries (tag ``kidnapped`` on the
-    first query after it). Each query names its nearest place as ``reference_id``. Reproducible from ``seed``.
-    """
-    from factorloc.datasets import Scenario, ScenarioQuery, ScenarioReference
-    from factorloc.sim import render_scan
-    from factorloc.sim.motion import sample_free_pose, simulate_odometry
-
-    rng = np.random.default_rng(seed)
-    if n_queries < 2:
-        raise InputError(f"n_queries must be >= 2, got {n_queries!r}")
-    cuts = sorted(rng.choice(np.arange(10, n_queries - 5), size=kidnaps, replace=False).tolist()) if kidnaps else []
-    bounds = [0, *cuts, n_queries]
-    pos = place_map.positions_m()
-    queries = []
-    odo_end: Pose2 | None = None
-    start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
-    for s, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=True)):
-        n = b - a
-        path = _leg(world, start, spacing_m * n + 1.0, rng, clearance_m)
-        steps = np.hypot(np.diff(path[:, 0]), np.diff(path[:, 1])) + 0.3 * np.abs(np.diff(np.unwrap(path[:, 2])))
-        arc = np.concatenate([[0.0], np.cumsum(steps)])
-        idx = np.minimum(np.searchsorted(arc, spacing_m * np.arange(n)), len(path) - 1)
-        run = simulate_odometry(path[: idx[-1] + 1], rng)
-        T0 = Pose2.from_array(run.poses[0])
-        for j, i in enumerate(idx):
-            truth = Pose2.from_array(path[i])
-            rel = T0.between(Pose2.from_array(run.poses[i]))
-            T_odo = rel if odo_end is None else odo_end.compose(rel)
-            o = run.odometry(int(i))
-            k = a + j
-            q = Query(
-                scan=render_scan(world, truth, rng=rng),  # type: ignore[arg-type]
-                odometry=Odometry(T_odo, o.sigma_x_m, o.sigma_y_m, o.sigma_theta_rad),
-                id=f"q{k:04d}",
-            )
-            nearest = place_map.ids[int(np.argmin(np.hypot(*(pos - truth.translation).T)))]
-            faults = ("kidnapped",) if (s > 0 and j == 0) else ()
-            queries.append(ScenarioQuery(q, float(k), truth, faults, nearest))
-        odo_end = queries[-1].query.odometry.T_world_robot  # type: ignore[union-attr]
-        start = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
-    refs = tuple(ScenarioReference(p.id, p.reference) for p in place_map)
-    return Scenario(f"track-{seed}", refs, tuple(queries), seed=seed, metadata={"kidnaps": kidnaps, "spacing_m": spacing_m})
+    return random_track(world, place_map, n_queries, seed, kidnaps=kidnaps, spacing_m=spacing_m, clearance_m=clearance_m)  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------
@@ -499,3 +414,118 @@ def verified_recall(
         ranks.append(rank)
         dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
     return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), n_candidates)
+
+
+# --------------------------------------------------------------------------
+# The Monte Carlo baseline along a track
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class McTrack:
+    """The Monte Carlo baseline along a scenario's queries.
+
+    ``poses`` (N×3, world frame) and ``covariances`` (N×3×3) of its belief after each query (NaN where the belief
+    was undetermined: ``determined[i]`` False); ``cpu_s`` the ``time.process_time`` of each query, hierarchy runs
+    included. ``rmse_position_m`` / ``rmse_heading_deg`` over the determined results (it has no flag);
+    ``recovered_within_3``: kidnappings after which a determined result within 10 cm and 1° of the truth came within
+    3 queries (as :class:`TrackFigures`).
+    """
+
+    poses: np.ndarray
+    covariances: np.ndarray
+    determined: np.ndarray
+    cpu_s: np.ndarray
+    rmse_position_m: float
+    rmse_heading_deg: float
+    kidnaps: int
+    recovered_within_3: int
+
+    def to_dict(self) -> dict[str, float]:
+        return {
+            "rmse_position_m": self.rmse_position_m,
+            "rmse_heading_deg": self.rmse_heading_deg,
+            "kidnaps": self.kidnaps,
+            "recovered_within_3": self.recovered_within_3,
+            "cpu_s_per_query": float(np.mean(self.cpu_s)),
+            "determined": float(np.mean(self.determined)),
+        }
+
+
+def _mcl_reports(q: object, belief: object, tracker: object, place_map: PlaceMap, starved: int) -> list:
+    """The evidence the baseline gets for query ``q``: the tracker's policy (see :func:`mcl_track`)."""
+    from dataclasses import replace
+
+    from factorloc.places import places_in_view, seed_of_prediction
+
+    multi, recognizer, cfg = tracker.multi, tracker.recognizer, tracker.config  # type: ignore[attr-defined]
+    reports: list = []
+    if belief is not None and starved < 2:
+        ids = [pid for pid, _ in places_in_view(place_map, belief.pose, belief.covariance, cfg.choice)]  # type: ignore[attr-defined]
+        if ids:
+            seeded = replace(q.query, odometry=seed_of_prediction(belief.pose, belief.covariance))  # type: ignore[attr-defined]
+            reports = list(multi.localize(seeded, ids, use_odometry=False).localization.steps)
+    if not any(r.estimate is not None and r.estimate.reliable for r in reports):
+        for c in recognizer.candidates(q.query, cfg.relocalize_k):  # type: ignore[attr-defined]
+            p = place_map[c.place_id]
+            T = p.T_world_reference.compose(Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0))
+            odo = Odometry(T, cfg.relocalize_sigma_m, cfg.relocalize_sigma_m, cfg.relocalize_sigma_rad)
+            run = multi.run_place(replace(q.query, odometry=odo), c.place_id)  # type: ignore[attr-defined]
+            reports.extend(run.localization.steps[1:])  # the place's steps, not its (made-up) odometry seed
+    return reports
+
+
+def mcl_track(
+    scenario: object,
+    place_map: PlaceMap,
+    bounds_xy: Sequence[float],
+    *,
+    particles: int = 2000,
+    seed: int = 0,
+    tracker: object = None,
+) -> McTrack:
+    """Run the Monte Carlo baseline (:class:`factorloc.baselines.mcl.MonteCarloLocalization`, ``particles``
+    particles drawn uniformly over ``bounds_xy`` = (x0, y0, x1, y1)) along ``scenario``'s queries with the tracker's
+    evidence-gathering policy: each query, the hierarchy against the places in view of its belief (seeded by it);
+    when the belief is undetermined or two queries went without a reliable estimate, against the top
+    ``relocalize_k`` recognized places (seeded there, heading from Scan Context). ``tracker`` (a
+    :class:`~factorloc.places.Tracker` on ``place_map``, default a new one) lends its hierarchy, recognizer and
+    settings; it is not updated."""
+    import time
+
+    from factorloc.baselines.mcl import MonteCarloLocalization
+    from factorloc.places import Tracker, TrackerConfig
+
+    tr = tracker if tracker is not None else Tracker(place_map, TrackerConfig())
+    mcl = MonteCarloLocalization(particles, bounds_xy=tuple(bounds_xy), seed=seed)
+    qs = scenario.queries  # type: ignore[attr-defined]
+    n = len(qs)
+    poses, covs = np.full((n, 3), np.nan), np.full((n, 3, 3), np.nan)
+    determined, cpu, good = np.zeros(n, bool), np.zeros(n), np.zeros(n, bool)
+    belief, starved = None, 2
+    for i, q in enumerate(qs):
+        c0 = time.process_time()
+        reports = _mcl_reports(q, belief, tr, place_map, starved)
+        belief = mcl.update(q.query, reports)
+        cpu[i] = time.process_time() - c0
+        starved = 0 if any(r.estimate is not None and r.estimate.reliable for r in reports) else starved + 1
+        if belief.undetermined:
+            belief = None
+            continue
+        determined[i] = True
+        poses[i], covs[i] = belief.pose.as_array(), belief.covariance
+        e = math.hypot(belief.pose.x - q.truth.x, belief.pose.y - q.truth.y)
+        eth = abs(math.remainder(belief.pose.theta - q.truth.theta, 2 * math.pi))
+        good[i] = e < 0.1 and eth < math.radians(1.0)
+    truth = np.array([q.truth.as_array() for q in qs])
+    err = poses[determined, :2] - truth[determined, :2]
+    eth = np.remainder(poses[determined, 2] - truth[determined, 2] + math.pi, 2 * math.pi) - math.pi
+    kid = [i for i, q in enumerate(qs) if "kidnapped" in q.faults]
+    return McTrack(
+        poses,
+        covs,
+        determined,
+        cpu,
+        math.sqrt(float(np.mean(np.sum(err**2, axis=1)))) if len(err) else math.nan,
+        math.degrees(math.sqrt(float(np.mean(eth**2)))) if len(err) else math.nan,
+        len(kid),
+        int(sum(bool(good[i : i + 3].any()) for i in kid)),
+    )

@@ -22,7 +22,7 @@ from factorloc.places.recognition import (
     scan_context_key,
     shape_distribution,
 )
-from factorloc.places.tracker import Tracker, TrackerConfig, TrackResult, TrackState
+from factorloc.places.tracker import Tracker, TrackerConfig, TrackResult, TrackState, seed_of_prediction
 
 __all__ = [
     "PLACE_COVARIANCE_KEY",
@@ -45,6 +45,7 @@ __all__ = [
     "scan_context",
     "scan_context_distance",
     "scan_context_key",
+    "seed_of_prediction",
     "shape_distribution",
     "split_step_name",
 ]

@@ -52,7 +52,7 @@ from factorloc.stats import chi2_quantile
 from factorloc.types import FULL, Component, Estimate, Localization, Odometry, Query, StepReport, StepStatus
 from factorloc.verdicts import Check, Unit
 
-__all__ = ["TrackResult", "TrackState", "Tracker", "TrackerConfig"]
+__all__ = ["TrackResult", "TrackState", "Tracker", "TrackerConfig", "seed_of_prediction"]
 
 _ = CHI2_3SIGMA_2DOF  # the 2-dof 3σ ellipse; the jump check uses the 3-dof quantile of the same tail
 
@@ -270,7 +270,7 @@ class Tracker:
         accepted: list[Estimate] = []
         reports: tuple[StepReport, ...] = ()
         if in_view:
-            seeded = replace(query, odometry=_seed(pred, pred_cov))
+            seeded = replace(query, odometry=seed_of_prediction(pred, pred_cov))
             pl = self.multi.localize(seeded, in_view, use_odometry=False)
             reports = pl.localization.steps
             for r in reports:
@@ -498,7 +498,7 @@ def _inflated(estimate: Estimate, n: int) -> Estimate:
     return replace(estimate, covariance=estimate.covariance * float(n))
 
 
-def _seed(pose: Pose2, cov: np.ndarray) -> Odometry:
+def seed_of_prediction(pose: Pose2, cov: np.ndarray) -> Odometry:
     """The prediction as the hypothesis the hierarchy is seeded with (per-axis σ: the covariance's diagonal)."""
     s = np.sqrt(np.maximum(np.diag(cov), 1e-12))
     return Odometry(pose, max(float(s[0]), 1e-3), max(float(s[1]), 1e-3), max(float(s[2]), 1e-3))

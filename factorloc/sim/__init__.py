@@ -33,6 +33,11 @@ renderer), :func:`relight`, :func:`motion_blur`, :func:`depth_dropout`,
 
 >>> from factorloc.sim import generate_scenario               # doctest: +SKIP
 >>> scenario = generate_scenario("apartment", n_queries=30, seed=103)  # doctest: +SKIP
+
+Multi-place worlds (:mod:`factorloc.sim.track`): places in every room of a world
+(:func:`~factorloc.sim.track.room_places`; rooms are the regions ``room.<name>``) and a robot touring the rooms
+through the doors with kidnappings (:func:`~factorloc.sim.track.generate_track`). Built-in worlds: ``apartment``
+and ``office`` (30 × 15 m, a corridor and eight rooms; :func:`world_by_name`).
 """
 
 from factorloc.sim.faults import depth_dropout, most_seen_face, motion_blur, place_occluders, relight
