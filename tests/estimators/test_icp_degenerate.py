@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import factorloc as fl
-from factorloc.estimators.icp.covariance import MIN_HEADING_STRENGTH
 from factorloc.gating import StepRun, gate
 
 TRUTH = fl.Pose2(0.0, 0.0, 0.0)
@@ -49,7 +48,8 @@ def test_a_round_scan_does_not_fuse_a_heading():
     assert report.status is fl.StepStatus.FUSED
     assert report.estimate.kind == "position"  # the heading is left to the other steps
     (check,) = [c for c in report.estimate.checks if c.code == "icp.constraint.heading"]
-    assert check.passed and check.value < MIN_HEADING_STRENGTH and "left to the other steps" in check.note
+    limit = fl.Config().icp.reliability.min_heading_strength
+    assert check.passed and check.value < limit and "left to the other steps" in check.note
     assert "heading unconstrained" in report.reason
     assert math.sqrt(loc.covariance[2, 2]) == pytest.approx(ODOMETRY.sigma_theta_rad, rel=1e-6)
 
