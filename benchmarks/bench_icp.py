@@ -67,6 +67,10 @@ def _fit_inflation(train: dict, config: Config) -> Config:
 
 #: What ``--candidates ablation`` leaves out, one at a time: rule and waiver codes (``IcpConfig.ablate``) and the
 #: flow switches of the configuration.
+#: The limits of the heading half of the constraint rule (``icp.reliability.min_heading_strength``) ``--folds``
+#: can compare as ``heading<limit>`` (0: the rule off; the circle of tests/estimators/test_icp_degenerate.py: 4e-4).
+HEADING_LIMITS: tuple[float, ...] = (0.0, 0.002, 0.005, 0.01, 0.02)
+
 ABLATIONS: tuple[str, ...] = (
     "icp.constraint",
     "icp.free_space",
@@ -101,7 +105,9 @@ def _ablated(config: Config, what: str) -> Config:
 def candidates() -> dict[str, Candidate]:
     """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
     floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
-    training logs, ``weak_prior_on`` / ``weak_prior_off`` the ICP's weak prior (``global_init.weak_prior``)."""
+    training logs, ``weak_prior_on`` / ``weak_prior_off`` the ICP's weak prior (``global_init.weak_prior``),
+    ``heading<limit>`` the heading half of the constraint rule at that limit (``reliability.min_heading_strength``;
+    ``heading0``: off)."""
     base = relations_config()
     out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
     for floor_mm in (7.5, 10, 12.5, 15, 20):
@@ -118,6 +124,10 @@ def candidates() -> dict[str, Candidate]:
         icp = base.icp
         cfg = replace(base, icp=replace(icp, global_init=replace(icp.global_init, weak_prior=on)))
         out[f"weak_prior_{'on' if on else 'off'}"] = Candidate(f"weak_prior_{'on' if on else 'off'}", cfg)
+    for limit in HEADING_LIMITS:
+        icp = base.icp
+        cfg = replace(base, icp=replace(icp, reliability=replace(icp.reliability, min_heading_strength=limit)))
+        out[f"heading{limit:g}"] = Candidate(f"heading{limit:g}", cfg)
     on = out["weak_prior_on"].config
     out["weak_prior_rivals"] = Candidate(  # the weak prior's window and rivals, not its free-space contest
         "weak_prior_rivals", replace(on, icp=replace(on.icp, ablate=(*on.icp.ablate, "icp.global.seed_refuted.weak")))

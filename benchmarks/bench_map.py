@@ -16,7 +16,8 @@ the :class:`~factorloc.places.Tracker` (:mod:`factorloc.evaluation.map_tracking`
 over the relations with a held-back end, the share flagged / lost, the agreement with the map of all scans and the
 share of unflagged results beyond 3σ of the tracker's covariance, and the tracking latency.
 
-``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings).
+``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings); a
+dotted name reaches into a nested config, e.g. ``--set icp.reliability.min_heading_strength=0.001``.
 """
 
 from __future__ import annotations
@@ -67,6 +68,22 @@ def _overrides(items: list[str]) -> dict:
     return out
 
 
+def _with(obj: object, dotted: str, value: object) -> object:
+    """``obj`` (a frozen dataclass) with the field ``dotted`` (``"a.b.c"``) replaced."""
+    head, _, rest = dotted.partition(".")
+    return replace(obj, **{head: _with(getattr(obj, head), rest, value) if rest else value})
+
+
+def _config(items: list[str]) -> MapConfig:
+    """The MapConfig of ``--set`` overrides (plain and dotted names)."""
+    pairs = _overrides(items)
+    config = MapConfig(**{k: v for k, v in pairs.items() if "." not in k})
+    for k, v in pairs.items():
+        if "." in k:
+            config = _with(config, k, v)
+    return config
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--log", required=True, choices=sorted(NAMES))
@@ -87,7 +104,7 @@ def main() -> None:
     log = read_laser_log(args.data / f"{name}.sort.bag")
     rel = read_relations(args.data / f"{name}.relations")
     log, rel = _prefix(log, rel, args.max_scans)
-    config = MapConfig(**_overrides(args.set))
+    config = _config(args.set)
     if args.track_every is not None:
         variants = ["marginal", "none"] if args.place_covariance == "both" else [args.place_covariance]
         _track(log, rel, config, args.track_every, name, args.json, variants)

@@ -90,6 +90,10 @@ class IcpResult:
         The per-correspondence ``J_i`` (K×3), residuals (K,), IRLS weights (K,) and
         pair noise variances (K,) at the solution, for the covariance
         estimators of :mod:`factorloc.registration.covariance`.
+    heading_lever_m2
+        ``Σ w_i |R q_i|²`` over the same correspondences (m², ``q_i`` the source point in its own frame): the
+        largest ``H_θθ`` they could give (every normal perpendicular to its point's ray), the scale of
+        :func:`~factorloc.estimators.icp.covariance.heading_strength`.
     """
 
     T_target_source: Pose2
@@ -104,6 +108,7 @@ class IcpResult:
     residuals_m: np.ndarray
     weights: np.ndarray
     variances_m2: np.ndarray
+    heading_lever_m2: float
 
 
 _DEFAULT_KERNEL = Cauchy(0.05)
@@ -175,8 +180,8 @@ def _align_core(
     """The ICP of :func:`align`, compiled. ``tgt``, ``start``, ``geo``: :class:`PreparedScan`'s ``packed``,
     ``grid_start``, ``grid_geo``; ``src`` (N×2, C-contiguous, finite, N ≥ 3); ``prm``: ``IcpParams._core``.
 
-    Returns ``info`` (18,) ``[θ, t_x, t_y, iterations, converged, fitness, rmse, chamfer, K, H (9, row
-    major)]``, ``J`` (N×3) and ``rwv`` (3×N: residuals, weights, variances) of the final linearisation in
+    Returns ``info`` (19,) ``[θ, t_x, t_y, iterations, converged, fitness, rmse, chamfer, K, H (9, row
+    major), Σ w |R q|² (m²)]``, ``J`` (N×3) and ``rwv`` (3×N: residuals, weights, variances) of the final linearisation in
     their first K rows / columns.
     """
     n = src.shape[0]
@@ -300,6 +305,7 @@ def _align_core(
     sum_src = 0.0
     sum_in = 0.0
     n_in = 0
+    lever = 0.0  # Σ w |R q_i|² over the pairs: the largest H_θθ they could give
     for i in range(n):
         k = nk[i]
         d = nd[i]
@@ -324,6 +330,7 @@ def _align_core(
             H[3] += w * ey * ey
             H[4] += w * ey * j2
             H[5] += w * j2 * j2
+            lever += w * ((qx[i] - tx) * (qx[i] - tx) + (qy[i] - ty) * (qy[i] - ty))
             if abs(r) < fit_d:
                 sum_in += r * r
                 n_in += 1
@@ -339,7 +346,7 @@ def _align_core(
     for j in range(m):
         d2, k = grid_nearest(tgt[j, 0], tgt[j, 1], q, sstart, sgeo, cap2)
         sum_tgt += min(math.sqrt(d2), cap) if k >= 0 else cap
-    info = np.empty(18)
+    info = np.empty(19)
     info[0], info[1], info[2], info[3] = theta, tx, ty, iters
     info[4] = 1.0 if converged and ksel >= 3 else 0.0
     info[5] = nfit / n
@@ -349,6 +356,7 @@ def _align_core(
     info[9], info[10], info[11] = H[0], H[1], H[2]
     info[12], info[13], info[14] = H[1], H[3], H[4]
     info[15], info[16], info[17] = H[2], H[4], H[5]
+    info[18] = lever
     return info, J, rwv  # the first K = info[8] rows / columns
 
 
@@ -426,7 +434,7 @@ def align(
     )
     th, x, y, iters, conv, fitness, rmse, chamfer, k = info[:9].tolist()
     k = int(k)
-    H = info[9:].reshape(3, 3)
+    H = info[9:18].reshape(3, 3)
     J, rwv = J[:k], rwv[:, :k]
     for a in (H, J, rwv):
         a.setflags(write=False)
@@ -443,4 +451,5 @@ def align(
         residuals_m=rwv[0],
         weights=rwv[1],
         variances_m2=rwv[2],
+        heading_lever_m2=float(info[18]),
     )

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import factorloc as fl
-from factorloc.estimators.icp.covariance import MIN_HEADING_STRENGTH
+from factorloc.estimators.icp.covariance import heading_strength
 from factorloc.gating import StepRun, gate
+from factorloc.registration.icp2d import align, prepare_target
 
 TRUTH = fl.Pose2(0.0, 0.0, 0.0)
 ODOMETRY = fl.Odometry(fl.Pose2(0.2, 0.05, 0.03), 0.3, 0.3, 0.1)
@@ -49,18 +50,38 @@ def test_a_round_scan_does_not_fuse_a_heading():
     assert report.status is fl.StepStatus.FUSED
     assert report.estimate.kind == "position"  # the heading is left to the other steps
     (check,) = [c for c in report.estimate.checks if c.code == "icp.constraint.heading"]
-    assert check.passed and check.value < MIN_HEADING_STRENGTH and "left to the other steps" in check.note
+    limit = fl.Config().icp.reliability.min_heading_strength
+    assert check.passed and check.value < limit and "left to the other steps" in check.note
     assert "heading unconstrained" in report.reason
     assert math.sqrt(loc.covariance[2, 2]) == pytest.approx(ODOMETRY.sigma_theta_rad, rel=1e-6)
 
 
-def test_a_room_keeps_its_heading():
-    rng = np.random.default_rng(2)
+def _room(rng: np.random.Generator) -> np.ndarray:
     t = np.linspace(0.0, 1.0, 100)
     room = np.concatenate([np.stack([4 * t, 0 * t]), np.stack([4 + 0 * t, 3 * t]), np.stack([4 * t, 3 + 0 * t])], axis=1).T
-    room = room - [2.0, 1.5] + rng.normal(0.0, 0.005, room.shape)
+    return room - [2.0, 1.5] + rng.normal(0.0, 0.005, room.shape)
+
+
+def test_a_room_keeps_its_heading():
+    room = _room(np.random.default_rng(2))
     loc = fl.localize(fl.Reference(scan=fl.Scan(room)), fl.Query(scan=fl.Scan(room), odometry=ODOMETRY))
     assert _icp(loc).estimate.kind == "full"
+
+
+def test_points_the_alignment_does_not_match_leave_the_heading_strength_alone():
+    # a wall 25 m away that only the query sees (a partial overlap, as in a loop closure): the heading strength is
+    # scaled by the correspondences' own lever arms, so the unmatched far points change nothing. Scaled by every
+    # query point's mean squared range it read 0.0050 here instead of 0.28 — at the limit, and the room's heading
+    # was dropped (the ACES map lost its closures that way, docs/calibration/icp.md)
+    rng = np.random.default_rng(2)
+    room = _room(rng)
+    far = np.stack([np.full(150, 25.0), np.linspace(-10.0, 10.0, 150)], axis=1) + rng.normal(0.0, 0.005, (150, 2))
+    target = prepare_target(room)
+    alone = heading_strength(align(target, room, fl.Pose2(0.01, 0.0, 0.0)))
+    with_far = heading_strength(align(target, np.concatenate([room, far]), fl.Pose2(0.01, 0.0, 0.0)))
+    assert alone > 0.2 and with_far == pytest.approx(alone, rel=0.02)
+    loc = fl.localize(fl.Reference(scan=fl.Scan(room)), fl.Query(scan=fl.Scan(np.concatenate([room, far])), odometry=ODOMETRY))
+    assert _icp(loc).estimate.kind == "full" and _icp(loc).status is fl.StepStatus.FUSED
 
 
 @pytest.mark.parametrize(

@@ -184,6 +184,11 @@ class ReliabilityConfig:
     min_constraint
         Smallest eigenvalue of the mean normal scatter (:func:`~factorloc.estimators.icp.constraint_strength`,
         in [0, 0.5]); below it the scan sees essentially one direction of walls.
+    min_heading_strength
+        Smallest heading strength (:func:`~factorloc.estimators.icp.covariance.heading_strength`, in [0, 1]) at
+        which the scan constrains the heading: below it (a round room seen from its centre) a reliable estimate
+        is position only, with a waived ``icp.constraint.heading`` check. 0 switches the rule off. Fitted leave
+        one log out on the real laser logs (``docs/calibration/icp.md``, "The heading half of the constraint rule").
     """
 
     min_fitness: float = 0.25
@@ -193,9 +198,10 @@ class ReliabilityConfig:
     min_score: float = 0.4
     violation_weight: float = 1.0
     min_constraint: float = 0.03
+    min_heading_strength: float = 0.005
 
     def __post_init__(self) -> None:
-        _unit("reliability", self, "min_fitness")
+        _unit("reliability", self, "min_fitness", "min_heading_strength")
         if not 0.0 <= self.min_constraint <= 0.5:
             raise ConfigError(f"icp.reliability.min_constraint must be in [0, 0.5], got {self.min_constraint!r}")
         if self.min_inliers < 3:

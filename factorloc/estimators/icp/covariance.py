@@ -144,31 +144,28 @@ def constraint_strength(result: IcpResult) -> float:
     return 0.0 if lam < ROUNDING_TOLERANCE else lam
 
 
-#: The smallest heading strength (:func:`heading_strength`) at which the scan constrains the heading: below it (a
-#: round room seen from its centre) the ICP estimate is position only. Set between the circle of
-#: ``tests/estimators/test_icp_degenerate.py`` (4e-4) and the sample scenario's rooms (0.10–0.21 on its first 12 queries).
-MIN_HEADING_STRENGTH = 0.005
-
-
-def heading_strength(result: IcpResult, query_points_m: np.ndarray) -> float:
+def heading_strength(result: IcpResult) -> float:
     """How much the aligned scan constrains the heading beyond what translation explains, dimensionless in [0, 1].
 
     The Schur complement of the heading in the Hessian, ``H_θθ − H_θp H_pp⁻¹ H_pθ`` (the position block
     regularized by 1e-9 of its trace, so that a wall's free direction does not divide by zero), over
-    ``Σ wᵢ · mean |pᵢ|²`` (the largest it could be: every normal perpendicular to its ray). 0 for a circle
-    centred on the sensor (every normal along its ray: rotating changes nothing); a wall or a room constrain
-    it. Values within :data:`~factorloc.verdicts.ROUNDING_TOLERANCE` of 0 are returned as 0.
+    ``Σ wᵢ |R qᵢ|²`` of the same weighted correspondences (``IcpResult.heading_lever_m2``: the largest ``H_θθ``
+    they could give, every normal perpendicular to its point's ray). 0 for a circle centred on the sensor (every
+    normal along its ray: rotating changes nothing); a wall or a room constrain it. Values within
+    :data:`~factorloc.verdicts.ROUNDING_TOLERANCE` of 0 are returned as 0.
+
+    The scale is the correspondences' own: the points the Hessian weighs (inliers, near points weighted up by the
+    range-dependent noise) rather than the mean squared range of every query point, which on a partial overlap
+    or a long-range scan counted far points the alignment barely uses (``docs/calibration/icp.md``).
     """
     w = result.weights
-    sw = float(w.sum()) if len(w) >= 3 else 0.0
-    pts = np.asarray(query_points_m, dtype=np.float64)
-    r2 = float(np.mean(np.einsum("ij,ij->i", pts, pts))) if len(pts) else 0.0
-    if not (sw > 0.0 and r2 > 0.0):
+    lever = float(result.heading_lever_m2) if len(w) >= 3 else 0.0
+    if not lever > 0.0:
         return 0.0
     h = np.asarray(result.hessian, dtype=np.float64)
     hpp = h[:2, :2] + 1e-9 * max(float(np.trace(h[:2, :2])), 1e-300) * np.eye(2)
     schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
-    value = min(max(schur / (sw * r2), 0.0), 1.0)
+    value = min(max(schur / lever, 0.0), 1.0)
     return 0.0 if value < ROUNDING_TOLERANCE else value
 
 

@@ -24,7 +24,6 @@ from factorloc.estimators.icp.candidates import (
 )
 from factorloc.estimators.icp.config import IcpConfig
 from factorloc.estimators.icp.covariance import (
-    MIN_HEADING_STRENGTH,
     cloud_config,
     heading_strength,
     smallest_sigma_position,
@@ -109,7 +108,7 @@ def estimate(
         best = replace(best, checks=judge(replace(best.evidence, seed_fit=None), config))
         out = _across_walls(prepared, query, best, seeded, seeds, config, evidence)
         if out is not None:
-            return _heading_checked(out, best, query)
+            return _heading_checked(out, best, config)
     est = Estimate.pose(
         "icp",
         prepared.T_world_reference * best.T_reference_query,
@@ -120,29 +119,30 @@ def estimate(
         diagnostics=_diagnostics(prepared, query, best, seeded, seeds, config),
         seed=evidence,
     )
-    return _heading_checked(est, best, query)
+    return _heading_checked(est, best, config)
 
 
-def _heading_checked(est: Estimate, sol: Solution, query: QueryScan) -> Estimate:
+def _heading_checked(est: Estimate, sol: Solution, config: IcpConfig) -> Estimate:
     """``est``, or its position alone when the scan does not constrain the heading (a round room from its centre).
 
     The constraint rule's heading half (:func:`~factorloc.estimators.icp.covariance.heading_strength` against
-    :data:`~factorloc.estimators.icp.covariance.MIN_HEADING_STRENGTH`, beyond rounding): the heading ICP would
+    ``config.reliability.min_heading_strength``, beyond rounding): the heading ICP would
     report is whatever its seed was, so it is left to the other steps (a waived check says so) rather than fused
     with a σ the geometry does not support. An unreliable estimate is returned as it is.
     """
-    strength = heading_strength(sol.result, query.points_m)
-    if not est.reliable or not weak(strength, MIN_HEADING_STRENGTH):
+    limit = config.reliability.min_heading_strength
+    strength = heading_strength(sol.result)
+    if not est.reliable or not weak(strength, limit):
         return est
     check = Check.at_least(
         "icp.constraint.heading",
         "heading constraint strength",
         strength,
-        MIN_HEADING_STRENGTH,
+        limit,
         note="degenerate geometry: a round scan",
     ).waived("the heading is left to the other steps")
     position = est.marginal(POSITION)
-    reason = f"position only, heading unconstrained (strength {strength:.3g} < {MIN_HEADING_STRENGTH:g}): {est.reason}"
+    reason = f"position only, heading unconstrained (strength {strength:.3g} < {limit:g}): {est.reason}"
     out = position.with_verdict(True, reason, (*est.checks, check))
     return replace(out, diagnostics={**out.diagnostics, "heading_strength": strength})
 
