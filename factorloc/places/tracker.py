@@ -17,6 +17,11 @@
   (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the place with
   the heading of the signature's best shift, their factors gated together); success starts a new chain (a new pose
   with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
+  The chain goes on instead only when the prediction is one the tracker vouches for (position σ ≤
+  :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
+  the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
+  against: one of σ 9.5 m "agrees" with any pose along a corridor (office tour, seed 1004, query 13: an 11 m
+  correction of a flagged re-localization was reported as ``tracking`` before this rule).
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
@@ -24,6 +29,14 @@ pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tr
 Mahalanobis distance of the new estimate from the prediction (3 dof), which flags any result that moved more than
 the prediction's 3σ allows. The tracker never restarts silently: a new chain is always a ``RELOCALIZED`` result
 with its reason.
+
+The states, as a rule: ``TRACKING`` — the pose continues the chain from a prediction the tracker vouches for
+(position σ ≤ ``lost_sigma_m``) with place factors that passed the gate against it; such a pose moves from the
+prediction by no more than the prediction's 3σ region allows (``tracker.jump``, 3 dof, χ² 14.16), or that check
+fails and the result is flagged (for one factor, or a recognized pose, the gate bounds the posterior's d² by the
+gate's own d², ≤ 16.27; never failed on the simulated tours). ``RELOCALIZED`` — the pose comes from place
+recognition and starts a new chain: it may jump by any distance; ``tracker.relocalized`` says why. ``LOST`` — no
+pose vouched for.
 """
 
 from __future__ import annotations
@@ -60,8 +73,8 @@ _ = CHI2_3SIGMA_2DOF  # the 2-dof 3σ ellipse; the jump check uses the 3-dof qua
 class TrackState(StrEnum):
     """What the tracker knows after a query."""
 
-    TRACKING = "tracking"  # the chain continues from the previous pose
-    RELOCALIZED = "relocalized"  # a new chain started from place recognition (start-up or after a kidnapping)
+    TRACKING = "tracking"  # the chain continues from a vouched-for prediction: no jump (else tracker.jump fails)
+    RELOCALIZED = "relocalized"  # a new chain from place recognition (start-up, kidnapping, lost): the pose may jump
     LOST = "lost"  # no pose the tracker vouches for: dead reckoning from the last one, or nothing yet
 
 
@@ -151,9 +164,10 @@ class TrackResult:
 
     ``localization`` is a :class:`~factorloc.Localization` of the tracker's pose (world frame) and marginal
     covariance, its step reports those of the place factors tried (and ``fused_with = "tracker"``); ``state`` the
-    :class:`TrackState`; ``places_used`` the places whose factors entered the graph; ``checks`` the tracker's
-    typed verdicts (prediction gate per factor, ``tracker.kidnap``, ``tracker.relocalized``, ``tracker.jump``);
-    ``flagged`` whether any of them failed or the state is ``LOST``.
+    :class:`TrackState` (the rule in the module docstring: only ``RELOCALIZED`` may jump); ``places_used`` the
+    places whose factors entered the graph; ``checks`` the tracker's typed verdicts (prediction gate per factor,
+    ``tracker.kidnap``, ``tracker.relocalized``, ``tracker.jump``); ``flagged`` whether any of them failed or the
+    state is ``LOST``.
     """
 
     query_id: str
@@ -311,7 +325,9 @@ class Tracker:
                     failure="kidnapping suspected: re-localizing by place recognition" if kidnap else "lost: re-localizing",
                 )
             )
-            return self._relocalize(query, (pred, pred_cov, delta, Q), checks, t0, "kidnapping" if kidnap else "lost")
+            why = "kidnapping" if kidnap else "lost"
+            # lost: the prediction is one the tracker no longer vouches for, never gated against
+            return self._relocalize(query, (pred, pred_cov, delta, Q), checks, t0, why, vouched=not lost)
         if cfg.share_query_error and len(accepted) > 1:
             accepted = [_inflated(e, len(accepted)) for e in accepted]
         return self._continue(query, pred, pred_cov, delta, Q, accepted, reports, checks, t0)
@@ -388,27 +404,30 @@ class Tracker:
         checks: list[Check],
         t0: float,
         why: str,
+        *,
+        vouched: bool = True,
     ) -> TrackResult:
+        """Place recognition; ``prediction`` (pose, covariance, odometry increment and its covariance) is None at
+        start-up or after a broken odometry; ``vouched`` is False when the lost rule called this (the prediction's
+        position σ exceeds :attr:`TrackerConfig.lost_sigma_m`): the chain is then never continued."""
         cfg = self.config
         found = self._recognize(query)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
+            note = f"{why}; places {list(found.places_used)}"
             if prediction is not None:
                 pred, pred_cov, delta, Q = prediction
-                fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance)
-                agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
-                checks.append(agree)
-                if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
-                    self._rejected_run = 0
-                    return self._continue(query, pred, pred_cov, delta, Q, factors, found.localization.steps, checks, t0)
-            checks.append(
-                Check.flag(
-                    "tracker.relocalized",
-                    "re-localized by place recognition",
-                    True,
-                    note=f"{why}; places {list(found.places_used)}",
-                )
-            )
+                if vouched:
+                    fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance)
+                    agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
+                    checks.append(agree)
+                    if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
+                        self._rejected_run = 0
+                        return self._continue(query, pred, pred_cov, delta, Q, factors, found.localization.steps, checks, t0)
+                    note += "; the recognized pose disagrees with the prediction: a new chain"
+                else:
+                    note += f"; the prediction (position σ > {cfg.lost_sigma_m:g} m) is not vouched for: a new chain"
+            checks.append(Check.flag("tracker.relocalized", "re-localized by place recognition", True, note=note))
             return self._new_chain(
                 query, factors, found.localization.steps, found.places_used, TrackState.RELOCALIZED, checks, t0
             )
@@ -480,6 +499,9 @@ def _jump_limit() -> float:
 
 
 def _jump_check(pose: Pose2, pred: Pose2, pred_cov: np.ndarray) -> Check:
+    """``tracker.jump``: the squared Mahalanobis distance of ``pose`` from the prediction (covariance ``pred_cov``
+    alone, world frame, heading wrapped) against the 3-dof χ² quantile of the Gaussian 3σ tail (14.16): whether
+    ``pose`` lies inside the prediction's own 3σ region."""
     nu = pose.as_array() - pred.as_array()
     nu[2] = math.remainder(float(nu[2]), 2 * math.pi)
     d2 = float(nu @ np.linalg.solve(pred_cov, nu))
