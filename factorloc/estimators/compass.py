@@ -313,7 +313,9 @@ class PreparedCompass:
 
     ``azimuth_rad`` (N,) are in the reference robot's frame; ``descriptors``
     N×D (uint8 for ORB, float32 for SIFT); ``problem`` says why the reference
-    cannot be used (no texture), else None.
+    cannot be used (no texture), else None. ``depth_points`` and ``pose_points``: the world points (N×2, m),
+    ranges and range spreads (N,, m) behind each keypoint in ``depth`` and ``pose_depth``
+    (:meth:`~factorloc.vision.depth.DepthMap.lookup`), looked up once here instead of per query.
     """
 
     grid: Grid
@@ -326,6 +328,18 @@ class PreparedCompass:
     depth: DepthMap | None = None
     reference_pose: Pose2 | None = None
     pose_depth: DepthMap | None = None
+    depth_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    pose_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+def _lookup(depth: DepthMap | None, az_rad: np.ndarray, el_rad: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """World points, ranges and range spreads of the keypoints behind ``depth`` (:meth:`DepthMap.lookup`), read-only."""
+    if depth is None:
+        return None
+    out = depth.lookup(az_rad, el_rad)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
@@ -350,7 +364,20 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     pose_depth = depth
     if config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
         pose_depth = depth_map(reference, grid, config.camera_height_m, (config.pose_depth_rows, config.pose_depth_cols))
-    return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose, pose_depth)
+    return PreparedCompass(
+        grid,
+        az,
+        el,
+        desc,
+        pose.theta,
+        problem,
+        config,
+        depth,
+        pose,
+        pose_depth,
+        _lookup(depth, az, el),
+        _lookup(pose_depth, az, el) if pose_depth is not depth else _lookup(depth, az, el),
+    )
 
 
 def detection_scale(pixels: int, config: CompassConfig) -> float:
@@ -500,7 +527,9 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     ranges = None
     if position is not None:
         # parallax-free: each reference point's direction as seen from the query position (reference orientation)
-        world_dir, ranges = prepared.depth.world_headings(az_r, np.zeros_like(az_r), position[0], prepared.elevation_rad)
+        delta = prepared.depth_points[0] - np.asarray(position[0], dtype=np.float64)[None, :]
+        world_dir = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0])))
+        ranges = np.hypot(delta[:, 0], delta[:, 1])
         az_r = np.asarray(wrap_angle(world_dir - prepared.theta_reference_rad))
     base["parallax_corrected"] = position is not None
     # a query keypoint is located to about one pixel of the image it was detected in
@@ -574,15 +603,15 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
             position[1],
             pixel_rad,
             config,
+            lookup=tuple(a[k] for a in prepared.depth_points),
         )
         if resected is not None:
             # the inliers were chosen with votes corrected from the *hypothesised* position: when that is off,
             # true pairs fall out of the band and the rest is a biased subset. Choose them again with votes
             # corrected from the resected position, and resect once more (same prior).
             k_all = ref_index[ri]
-            world_vote, _ = prepared.depth.world_headings(
-                prepared.azimuth_rad[k_all], az_q[qi], resected[2], prepared.elevation_rad[k_all]
-            )
+            delta = prepared.depth_points[0][k_all] - np.asarray(resected[2], dtype=np.float64)[None, :]
+            world_vote = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - az_q[qi]))
             again = np.abs(wrap_angle(world_vote - resected[0])) <= config.inlier_band_rad
             if int(again.sum()) >= config.min_inliers and np.any(again != inliers):
                 k = ref_index[ri[again]]
@@ -595,6 +624,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
                     position[1],
                     pixel_rad,
                     config,
+                    lookup=tuple(a[k] for a in prepared.depth_points),
                 )
                 if second is not None:
                     resected, inliers = second, again
@@ -683,14 +713,14 @@ def _pose_from_bearings(
     σ_D as in :func:`resect`), the covariance ``σ̂² (JᵀWJ)⁻¹`` from the residuals' own variance, plus the
     heading floor ``sigma_floor_rad`` and the position floor ``pose_sigma_floor_m``.
     Returns None (the heading-only path then runs) when the pose fails a check; the failed checks are put in
-    ``diag["pose_rejected"]``.
+    ``diag["pose_rejected"]`` (only the inlier checks when they fail: the refinement is then skipped).
     """
     from factorloc.verdicts import Check, Unit, render_checks
     from factorloc.vision import resection as rs
 
     depth = prepared.pose_depth or prepared.depth
-    az_ref, el_ref = prepared.azimuth_rad[ref_index], prepared.elevation_rad[ref_index]
-    pts = depth.world_points(az_ref, el_ref)
+    az_ref = prepared.azimuth_rad[ref_index]
+    pts, ranges_ref, spread_ref = (a[ref_index] for a in prepared.pose_points)
     fit = rs.ransac(
         pts,
         az_query_rad,
@@ -702,13 +732,24 @@ def _pose_from_bearings(
         diag["pose_rejected"] = "no pose fits three bearings"
         return None
     inl = fit.inliers
-    sigma_range = np.maximum(config.depth_relative_sigma * depth.range_at(az_ref, el_ref), 0.5 * depth.spread_at(az_ref, el_ref))
+    n_in = fit.n_inliers
+    checks = [
+        Check.at_least("compass.pose.inliers", "resection inliers", n_in, config.min_pose_inliers, Unit.COUNT),
+        Check.at_least(
+            "compass.pose.inlier_ratio", "resection inlier ratio", n_in / len(inl), config.min_inlier_ratio, Unit.FRACTION
+        ),
+    ]
+    if not all(c.passed for c in checks):
+        # too few bearings agree: no refinement could pass (the two checks only read the RANSAC inliers)
+        failed = [c for c in checks if not c.passed]
+        diag.update(pose_inliers=n_in, pose_runner_up=fit.runner_up, pose_rejected=render_checks(failed))
+        return None
+    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * spread_ref)
     az_ref_world = depth.T_world_reference.theta + az_ref
     d = pts - np.array([fit.pose.x, fit.pose.y])
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
     sin_delta = np.abs(np.cos(az_ref_world) * d[:, 1] - np.sin(az_ref_world) * d[:, 0]) / r
     weights = pixel_rad**2 / (pixel_rad**2 + (sigma_range * sin_delta / r) ** 2)
-    groups = _groups(pts, config.pose_group_m)
     groups = _groups(pts, config.pose_group_m)
     final = rs.refine(
         pts[inl],
@@ -719,13 +760,6 @@ def _pose_from_bearings(
         jackknife=True,
         groups=groups[inl],
     )
-    n_in = fit.n_inliers
-    checks = [
-        Check.at_least("compass.pose.inliers", "resection inliers", n_in, config.min_pose_inliers, Unit.COUNT),
-        Check.at_least(
-            "compass.pose.inlier_ratio", "resection inlier ratio", n_in / len(inl), config.min_inlier_ratio, Unit.FRACTION
-        ),
-    ]
     if final is None:
         checks.append(Check.flag("compass.pose.solvable", "resection solvable", False, failure="singular resection"))
     else:
@@ -878,9 +912,7 @@ def _position_sensitivity(
     support than ``n_inliers`` (the mode at the hypothesis), or None.
     """
     (x0, y0), sigma_p = position
-    az_ref = prepared.azimuth_rad[ref_index]
-    el_ref = prepared.elevation_rad[ref_index]
-    pts = prepared.depth.world_points(az_ref, el_ref)
+    pts = prepared.depth_points[0][ref_index]
     steps = sigma_p * np.arange(-2.0, 2.5, 1.0)
     dx, dy = (g.ravel() for g in np.meshgrid(steps, steps, indexing="ij"))
     off = (dx != 0.0) | (dy != 0.0)
@@ -908,6 +940,8 @@ def resect(
     sigma_position_m: float,
     pixel_rad: float,
     config: CompassConfig,
+    *,
+    lookup: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[float, float, tuple[float, float]] | None:
     """Heading (and position) from bearings to known points, with a position prior (Gauss–Newton).
 
@@ -922,17 +956,17 @@ def resect(
     ``min(1, max_effective_inliers / n)`` (correlated errors). The heading's σ is the larger of
     the posterior's and the jackknife's (leave-one-bearing-out, linearized at the solution):
     a few bearings with high leverage (one far point among many on one wall) are otherwise
-    trusted beyond what their scatter supports.
+    trusted beyond what their scatter supports. ``lookup``: the bearings' world points, ranges and range
+    spreads when already looked up (:attr:`PreparedCompass.depth_points` indexed), else read from ``depth``.
 
     Returns
     -------
     (theta_world_rad, sigma_theta_rad, (x_m, y_m)) or None
         None when fewer than ``min_inliers`` bearings remain or the system is singular.
     """
-    pts = depth.world_points(az_ref_rad, el_ref_rad)
-    ranges_ref = depth.range_at(az_ref_rad, el_ref_rad)
+    pts, ranges_ref, spread_ref = depth.lookup(az_ref_rad, el_ref_rad) if lookup is None else lookup
     # a range's σ: relative, or half the range spread around it where the coarse map has a depth edge
-    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * depth.spread_at(az_ref_rad, el_ref_rad))
+    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * spread_ref)
     az_ref_world = depth.T_world_reference.theta + np.asarray(az_ref_rad)
     ref_dir = np.column_stack([np.cos(az_ref_world), np.sin(az_ref_world)])
     prior = np.array([T_world_seed.x, T_world_seed.y])

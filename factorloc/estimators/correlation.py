@@ -70,7 +70,7 @@ from factorloc.verdicts import SeedEvidence
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
-from factorloc.vision.synth import synthesize
+from factorloc.vision.synth import synthesize, wrap_padded
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +158,8 @@ class CorrelationConfig:
 class PreparedCorrelation:
     """The reference pyramid: level k is the grey panorama downscaled by ``ratioᵏ`` (k = 0 … n).
 
-    ``scales`` holds each level's actual (width, height) ratio to level 0.
+    ``scales`` holds each level's actual (width, height) ratio to level 0; ``padded`` is level 0 with its first
+    two columns appended (:func:`factorloc.vision.synth.wrap_padded`), the source of the parallax warp, built once.
     """
 
     grid: Grid
@@ -169,6 +170,7 @@ class PreparedCorrelation:
     config: CorrelationConfig
     depth: DepthMap | None = None
     reference_pose: Pose2 = Pose2()
+    padded: np.ndarray | None = None
 
 
 def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig()) -> PreparedCorrelation:
@@ -181,7 +183,8 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
     pyr = _pyramid(gray, grid, config)
     pose = reference.T_world_reference
-    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], pose.theta, problem, config, depth, pose)
+    padded = wrap_padded(pyr["levels"][0]) if depth is not None else None
+    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], pose.theta, problem, config, depth, pose, padded)
 
 
 def _pyramid(gray: np.ndarray, grid: Grid, config: CorrelationConfig) -> dict[str, tuple]:
@@ -332,7 +335,7 @@ def _level_curve(
             x_lo, x_hi = 0, w_ref - 1
         else:
             x_lo, x_hi = int(math.floor(x_c - half)) - 1, int(math.ceil(x_c + half)) + 1
-        band = np.ascontiguousarray(ref[dy_lo : dy_hi + t.shape[0]])
+        band = ref[dy_lo : dy_hi + t.shape[0]]  # a view: correlate_wrapped gathers only the columns it needs
         scores = correlate_wrapped(band, np.ascontiguousarray(t), x_lo, x_hi)
         total += scores.size
         curves.append((np.arange(x_lo, x_hi + 1), scores.max(axis=0).astype(np.float64), x_c, float(t.size), sq))
@@ -439,6 +442,7 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
             prepared.depth,
             (p_ref[0], p_ref[1]),
             columns=_reachable_columns(strips, prepared.grid, seed),
+            padded=prepared.padded,
         )
         # only level 0 is correlated after the warp (below): no pyramid of the re-rendered panorama
         prepared = dataclasses.replace(prepared, levels=(synth,), scales=((1.0, 1.0),))

@@ -33,6 +33,7 @@ def synthesize(
     *,
     max_depth_jump: float = 0.1,
     columns: np.ndarray | None = None,
+    padded: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Warp the grey reference panorama (H×W float32) to a viewpoint at ``position_xy_m`` (reference frame).
 
@@ -52,6 +53,9 @@ def synthesize(
         Optional boolean mask (W,) of the output columns to render (the others are left 0): the
         correlation renders only the columns its seeded window can reach. The per-column
         geometry (range, magnification) is always computed for all W columns.
+    padded
+        Optional ``gray`` with its first two columns appended (H×(W+2), :func:`wrap_padded`), when the caller
+        keeps one (a reference's is the same for every query); built here otherwise.
 
     Returns
     -------
@@ -107,10 +111,16 @@ def synthesize(
     v = np.arange(h, dtype=np.float32)
     map_y = np.float32(0.5 * h) + (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
     map_x = np.ascontiguousarray(np.broadcast_to(src_col[cols].astype(np.float32)[None, :], (h, cols.size)))
-    padded = np.concatenate([gray, gray[:, :2]], axis=1)
+    if padded is None:
+        padded = wrap_padded(gray)
     warped = cv2.remap(padded, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     if columns is None:
         return warped, r_out, 1.0 / ratio
-    out = np.zeros_like(gray)
+    out = np.zeros(gray.shape, dtype=gray.dtype)  # calloc'd: the pages of columns never rendered are never touched
     out[:, cols] = warped
     return out, r_out, 1.0 / ratio
+
+
+def wrap_padded(gray: np.ndarray) -> np.ndarray:
+    """``gray`` (H×W) with its first two columns appended (H×(W+2)): the source :func:`synthesize` remaps from."""
+    return np.concatenate([gray, gray[:, :2]], axis=1)
