@@ -315,7 +315,8 @@ class PreparedCompass:
     N×D (uint8 for ORB, float32 for SIFT); ``problem`` says why the reference
     cannot be used (no texture), else None. ``depth_points`` and ``pose_points``: the world points (N×2, m),
     ranges and range spreads (N,, m) behind each keypoint in ``depth`` and ``pose_depth``
-    (:meth:`~factorloc.vision.depth.DepthMap.lookup`), looked up once here instead of per query.
+    (:meth:`~factorloc.vision.depth.DepthMap.lookup`), looked up once here instead of per query;
+    ``descriptor_sq_norms`` the descriptors' squared norms (SIFT: :func:`factorloc.vision.keypoints.sq_norms`).
     """
 
     grid: Grid
@@ -330,6 +331,7 @@ class PreparedCompass:
     pose_depth: DepthMap | None = None
     depth_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     pose_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    descriptor_sq_norms: np.ndarray | None = None
 
 
 def _lookup(depth: DepthMap | None, az_rad: np.ndarray, el_rad: np.ndarray) -> tuple[np.ndarray, ...] | None:
@@ -377,6 +379,7 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
         pose_depth,
         _lookup(depth, az, el),
         _lookup(pose_depth, az, el) if pose_depth is not depth else _lookup(depth, az, el),
+        kp.sq_norms(desc) if desc is not None and config.detector == "sift" else None,
     )
 
 
@@ -525,6 +528,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     ref_index = np.arange(len(az_r))
     position = position_seed(hypotheses) if prepared.depth is not None else None
     ranges = None
+    norms_r = prepared.descriptor_sq_norms
     if position is not None:
         # parallax-free: each reference point's direction as seen from the query position (reference orientation)
         delta = prepared.depth_points[0] - np.asarray(position[0], dtype=np.float64)[None, :]
@@ -542,10 +546,11 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         reach = window + config.inlier_band_rad + config.distinct_margin_rad
         used = kp.nearest_circular_distance(np.asarray(wrap_angle(az_r - seed[0])), az_q) <= reach
         az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
+        norms_r = None if norms_r is None else norms_r[used]
         ranges = None if ranges is None else ranges[used]
         allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
     candidates = int(len(az_r))
-    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
+    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
     outside_votes = np.zeros(0)
     if window is not None:
         inside = np.abs(np.asarray(wrap_angle(az_r[ri] - az_q[qi] - seed[0]))) <= window + config.inlier_band_rad
