@@ -478,7 +478,7 @@ def bench_pose(directories: list[Path], max_queries: int) -> None:
             print(t.row(label))
         _print_ratios(tallies, "pose from bearings (default) / compass", "pose from bearings (default) / correlation")
         for key, (tc, tr) in ((k, v) for k, v in prepared.items() if k[0] == "prepare CPU s"):
-            print(f"preparation of reference {key[2]!r} ({key[1]}), CPU ms once: compass {1e3 * tc:.0f}, correlation {1e3 * tr:.0f}")
+            print(f"preparation of {key[2]!r} ({key[1]}), CPU ms once: compass {1e3 * tc:.0f}, correlation {1e3 * tr:.0f}")
 
 
 def bench_same_spot(n_views: int) -> None:

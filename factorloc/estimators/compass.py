@@ -978,7 +978,6 @@ def resect(
     state = np.array([T_world_seed.x, T_world_seed.y, T_world_seed.theta])
     keep = np.ones(len(pts), dtype=bool)
     info_prior = np.diag([1.0 / sigma_position_m**2, 1.0 / sigma_position_m**2, 0.0])
-    cov = None
     for it in range(8):
         d = pts - state[:2]
         r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-6)
@@ -998,13 +997,16 @@ def resect(
         g = (jac * w[:, None]).T @ res + info_prior @ np.append(state[:2] - prior, 0.0)
         try:
             step = np.linalg.solve(h, -g)
-            cov = np.linalg.inv(h)
         except np.linalg.LinAlgError:
             return None
         state = state + step
         if np.all(np.abs(step) < 1e-7):
             break
-    if cov is None or not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
+    try:
+        cov = np.linalg.inv(h)  # the normal matrix of the last step (as the covariance was before the loop ended)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
         return None
     var_theta = float(cov[2, 2])
     # jackknife: the heading's change when one bearing is left out (one Gauss–Newton step from the solution,

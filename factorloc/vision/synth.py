@@ -109,7 +109,8 @@ def synthesize(
         src_col, ratio, r_out = src_col[nearest], ratio[nearest], r_out[nearest]
     cols = np.arange(w) if columns is None else np.flatnonzero(columns)
     v = np.arange(h, dtype=np.float32)
-    map_y = np.float32(0.5 * h) + (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
+    map_y = (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
+    map_y += np.float32(0.5 * h)
     map_x = np.ascontiguousarray(np.broadcast_to(src_col[cols].astype(np.float32)[None, :], (h, cols.size)))
     if padded is None:
         padded = wrap_padded(gray)
@@ -117,7 +118,11 @@ def synthesize(
     if columns is None:
         return warped, r_out, 1.0 / ratio
     out = np.zeros(gray.shape, dtype=gray.dtype)  # calloc'd: the pages of columns never rendered are never touched
-    out[:, cols] = warped
+    # the rendered columns are a few runs (one per view, two when it straddles column 0): slice copies, not a
+    # fancy-indexed scatter of every pixel
+    breaks = np.flatnonzero(np.diff(cols) != 1) + 1
+    for lo, hi in zip(np.concatenate([[0], breaks]), np.concatenate([breaks, [cols.size]]), strict=True):
+        out[:, cols[lo] : cols[hi - 1] + 1] = warped[:, lo:hi]
     return out, r_out, 1.0 / ratio
 
 
