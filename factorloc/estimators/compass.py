@@ -897,7 +897,13 @@ def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, g
 def _groups(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     """Integer labels of the world grid cells (``cell_m``) the points fall in."""
     cells = np.floor(points_xy_m / cell_m).astype(np.int64)
-    _, labels = np.unique(cells, axis=0, return_inverse=True)
+    if not len(cells):
+        return np.zeros(0, dtype=np.int64)
+    # one integer per cell, in the cells' lexicographic (x, then y) order: the labels np.unique(cells, axis=0)
+    # gives, without its row-wise (structured) sort
+    lo = cells.min(axis=0)
+    span_y = int(cells[:, 1].max() - lo[1]) + 1
+    _, labels = np.unique((cells[:, 0] - lo[0]) * span_y + (cells[:, 1] - lo[1]), return_inverse=True)
     return labels.ravel()
 
 

@@ -78,7 +78,7 @@ def detect(
     kps, desc = detector.detectAndCompute(img, None)
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2)), None
-    xy = np.array([kp.pt for kp in kps], dtype=np.float64)
+    xy = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)  # the (x, y) of each keypoint, as kp.pt
     if isinstance(detector, cv2.SIFT):
         # OpenCV's SIFT doubles its input for the first octave (pixel i of the double at (i + ½)/2 − ½) but reports
         # positions as i/2: ¼ px right of and below the truth, for every octave. Harmless when both images share it,

@@ -34,6 +34,7 @@ def synthesize(
     max_depth_jump: float = 0.1,
     columns: np.ndarray | None = None,
     padded: np.ndarray | None = None,
+    horizon: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Warp the grey reference panorama (H×W float32) to a viewpoint at ``position_xy_m`` (reference frame).
 
@@ -56,6 +57,8 @@ def synthesize(
     padded
         Optional ``gray`` with its first two columns appended (H×(W+2), :func:`wrap_padded`), when the caller
         keeps one (a reference's is the same for every query); built here otherwise.
+    horizon
+        Optional :func:`horizon_points` of ``grid`` and ``depth`` (the same for every query), built here otherwise.
 
     Returns
     -------
@@ -65,11 +68,9 @@ def synthesize(
         ``D / r'`` relative to the reference (W,).
     """
     h, w = gray.shape
-    u = np.arange(w, dtype=np.float64)
-    az = np.asarray(grid.azimuth_of_column(u), dtype=np.float64)
-    d = depth.range_at(az, np.zeros(w)).astype(np.float64)
+    d, d_cos, d_sin = horizon_points(grid, depth) if horizon is None else horizon
     px, py = float(position_xy_m[0]), float(position_xy_m[1])
-    x, y = d * np.cos(az) - px, d * np.sin(az) - py
+    x, y = d_cos - px, d_sin - py
     r_new = np.hypot(x, y)
     u_new = np.mod((grid.azimuth_col0_rad - np.arctan2(y, x)) / grid.rad_per_px, w)
     # segments between source columns i and i+1 (circular)
@@ -129,3 +130,10 @@ def synthesize(
 def wrap_padded(gray: np.ndarray) -> np.ndarray:
     """``gray`` (H×W) with its first two columns appended (H×(W+2)): the source :func:`synthesize` remaps from."""
     return np.concatenate([gray, gray[:, :2]], axis=1)
+
+
+def horizon_points(grid: Grid, depth: DepthMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per reference column (W,): the range ``D`` at the horizon (m) and the point ``D·(cos az, sin az)`` (m, reference frame)."""
+    az = np.asarray(grid.azimuth_of_column(np.arange(grid.width_px, dtype=np.float64)), dtype=np.float64)
+    d = depth.range_at(az, np.zeros(grid.width_px)).astype(np.float64)
+    return d, d * np.cos(az), d * np.sin(az)
