@@ -314,7 +314,7 @@ class PreparedCompass:
     ``azimuth_rad`` (N,) are in the reference robot's frame; ``descriptors``
     N×D (uint8 for ORB, float32 for SIFT); ``problem`` says why the reference
     cannot be used (no texture), else None. ``depth_points`` and ``pose_points``: the world points (N×2, m),
-    ranges and range spreads (N,, m) behind each keypoint in ``depth`` and ``pose_depth``
+    ranges and range spreads ((N,), m) behind each keypoint in ``depth`` and ``pose_depth``
     (:meth:`~factorloc.vision.depth.DepthMap.lookup`), looked up once here instead of per query;
     ``descriptor_sq_norms`` the descriptors' squared norms (SIFT: :func:`factorloc.vision.keypoints.sq_norms`).
     """
@@ -366,6 +366,7 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     pose_depth = depth
     if config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
         pose_depth = depth_map(reference, grid, config.camera_height_m, (config.pose_depth_rows, config.pose_depth_cols))
+    depth_points = _lookup(depth, az, el)
     return PreparedCompass(
         grid,
         az,
@@ -377,8 +378,8 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
         depth,
         pose,
         pose_depth,
-        _lookup(depth, az, el),
-        _lookup(pose_depth, az, el) if pose_depth is not depth else _lookup(depth, az, el),
+        depth_points,
+        depth_points if pose_depth is depth else _lookup(pose_depth, az, el),
         kp.sq_norms(desc) if desc is not None and config.detector == "sift" else None,
     )
 

@@ -338,7 +338,7 @@ def _level_curve(
             x_lo, x_hi = 0, w_ref - 1
         else:
             x_lo, x_hi = int(math.floor(x_c - half)) - 1, int(math.ceil(x_c + half)) + 1
-        band = ref[dy_lo : dy_hi + t.shape[0]]  # a view: correlate_wrapped gathers only the columns it needs
+        band = np.ascontiguousarray(ref[dy_lo : dy_hi + t.shape[0]])
         scores = correlate_wrapped(band, np.ascontiguousarray(t), x_lo, x_hi)
         total += scores.size
         curves.append((np.arange(x_lo, x_hi + 1), scores.max(axis=0).astype(np.float64), x_c, float(t.size), sq))
