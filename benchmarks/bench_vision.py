@@ -262,7 +262,11 @@ def _compass_then_correlation(prepared: dict, name: str, cfg: Any, ref: Any, cas
     ``(compass estimate, correlation estimate, compass CPU s, correlation CPU s)``."""
     key = (name, case.reference_id)
     if key not in prepared:
-        prepared[key] = (compass.prepare(ref, cfg), correlation.prepare(ref))
+        t0 = time.process_time()
+        pc = compass.prepare(ref, cfg)
+        t1 = time.process_time()
+        prepared[key] = (pc, correlation.prepare(ref))
+        prepared[("prepare CPU s",) + key] = (t1 - t0, time.process_time() - t1)
     pc, pr = prepared[key]
     t0 = time.process_time()
     ec = compass.estimate(ref, case.query, hyp, cfg, prepared=pc)
@@ -424,6 +428,16 @@ POSE_HEADER = (
 )
 
 
+def _print_ratios(tallies: dict, compass_key: str, correlation_key: str, label: str = "") -> None:
+    """The compass's and the correlation's median CPU time per query over the ORB vote baseline's, same run."""
+    base = float(np.median(tallies["ORB vote baseline"].ms))
+    c, r = float(np.median(tallies[compass_key].ms)), float(np.median(tallies[correlation_key].ms))
+    print(
+        f"{label + ': ' if label else ''}median CPU ms per query: compass {c:.1f}, correlation {r:.1f}, ORB vote baseline "
+        f"{base:.1f} (same run) -> compass / ORB {c / base:.2f}, correlation / ORB {r / base:.2f}"
+    )
+
+
 def bench_pose(directories: list[Path], max_queries: int) -> None:
     """The compass with pose from bearings vs heading-only, the correlation after each, and a plain ORB vote."""
     import cv2
@@ -462,6 +476,9 @@ def bench_pose(directories: list[Path], max_queries: int) -> None:
         print(POSE_HEADER)
         for label, t in tallies.items():
             print(t.row(label))
+        _print_ratios(tallies, "pose from bearings (default) / compass", "pose from bearings (default) / correlation")
+        for key, (tc, tr) in ((k, v) for k, v in prepared.items() if k[0] == "prepare CPU s"):
+            print(f"preparation of {key[2]!r} ({key[1]}), CPU ms once: compass {1e3 * tc:.0f}, correlation {1e3 * tr:.0f}")
 
 
 def bench_same_spot(n_views: int) -> None:
@@ -536,6 +553,7 @@ def bench_same_spot(n_views: int) -> None:
         print(tc.row(f"{label} / compass"))
         print(tr.row(f"{label} / correlation"))
         print(tb.row(f"{label} / ORB vote baseline"))
+        _print_ratios({"compass": tc, "correlation": tr, "ORB vote baseline": tb}, "compass", "correlation", label)
 
 
 def bench_pose_fit(n: int, overrides: list[str]) -> None:

@@ -24,10 +24,13 @@ def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     if isinstance(angle_rad, float):  # the common scalar case without numpy's call overhead; same arithmetic
         out = float(np.float64(angle_rad + math.pi) % (2.0 * math.pi) - math.pi)
         return -math.pi if out >= math.pi else out  # just below -π, the mod rounds up to 2π: map π to -π
-    wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + math.pi, 2.0 * math.pi) - math.pi
-    wrapped = np.where(wrapped >= math.pi, -math.pi, wrapped)
-    if np.ndim(wrapped) == 0:
-        return float(wrapped)
+    wrapped = np.asarray(angle_rad, dtype=np.float64) + math.pi  # a new array: the input is never written
+    if wrapped.ndim == 0:
+        out = float(np.mod(wrapped, 2.0 * math.pi) - math.pi)
+        return -math.pi if out >= math.pi else out
+    np.mod(wrapped, 2.0 * math.pi, out=wrapped)  # in place: the same arithmetic as mod(x + π, 2π) − π, fewer copies
+    wrapped -= math.pi
+    wrapped[wrapped >= math.pi] = -math.pi
     return wrapped
 
 

@@ -195,8 +195,12 @@ def localize(
 
     Notes
     -----
-    To localize many queries against one reference, build a :class:`Localizer`
-    once: the reference-only work (keypoints, pyramids, KD-trees) is cached.
+    A one-shot call prepares the reference inside (each step's
+    :meth:`~factorloc.estimators.base.Step.prepare`: the compass's SIFT
+    keypoints of the whole panorama and its depth maps, the correlation's pyramid, the ICP's KD-tree), which
+    costs many times one query's estimation (figures: ``docs/calibration/vision.md``, "Time";
+    :attr:`Localizer.prepare_seconds` holds them per step). To localize many queries against one reference,
+    build a :class:`Localizer` once: the reference-only work is then done once and cached.
     """
     return Localizer(reference, config, steps=steps, strategy=strategy).localize(query)
 

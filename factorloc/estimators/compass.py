@@ -313,7 +313,10 @@ class PreparedCompass:
 
     ``azimuth_rad`` (N,) are in the reference robot's frame; ``descriptors``
     N×D (uint8 for ORB, float32 for SIFT); ``problem`` says why the reference
-    cannot be used (no texture), else None.
+    cannot be used (no texture), else None. ``depth_points`` and ``pose_points``: the world points (N×2, m),
+    ranges and range spreads ((N,), m) behind each keypoint in ``depth`` and ``pose_depth``
+    (:meth:`~factorloc.vision.depth.DepthMap.lookup`), looked up once here instead of per query;
+    ``descriptor_sq_norms`` the descriptors' squared norms (SIFT: :func:`factorloc.vision.keypoints.sq_norms`).
     """
 
     grid: Grid
@@ -326,6 +329,19 @@ class PreparedCompass:
     depth: DepthMap | None = None
     reference_pose: Pose2 | None = None
     pose_depth: DepthMap | None = None
+    depth_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    pose_points: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    descriptor_sq_norms: np.ndarray | None = None
+
+
+def _lookup(depth: DepthMap | None, az_rad: np.ndarray, el_rad: np.ndarray) -> tuple[np.ndarray, ...] | None:
+    """World points, ranges and range spreads of the keypoints behind ``depth`` (:meth:`DepthMap.lookup`), read-only."""
+    if depth is None:
+        return None
+    out = depth.lookup(az_rad, el_rad)
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> PreparedCompass:
@@ -350,7 +366,22 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     pose_depth = depth
     if config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
         pose_depth = depth_map(reference, grid, config.camera_height_m, (config.pose_depth_rows, config.pose_depth_cols))
-    return PreparedCompass(grid, az, el, desc, pose.theta, problem, config, depth, pose, pose_depth)
+    depth_points = _lookup(depth, az, el)
+    return PreparedCompass(
+        grid,
+        az,
+        el,
+        desc,
+        pose.theta,
+        problem,
+        config,
+        depth,
+        pose,
+        pose_depth,
+        depth_points,
+        depth_points if pose_depth is depth else _lookup(pose_depth, az, el),
+        kp.sq_norms(desc) if desc is not None and config.detector == "sift" else None,
+    )
 
 
 def detection_scale(pixels: int, config: CompassConfig) -> float:
@@ -498,9 +529,12 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     ref_index = np.arange(len(az_r))
     position = position_seed(hypotheses) if prepared.depth is not None else None
     ranges = None
+    norms_r = prepared.descriptor_sq_norms
     if position is not None:
         # parallax-free: each reference point's direction as seen from the query position (reference orientation)
-        world_dir, ranges = prepared.depth.world_headings(az_r, np.zeros_like(az_r), position[0], prepared.elevation_rad)
+        delta = prepared.depth_points[0] - np.asarray(position[0], dtype=np.float64)[None, :]
+        world_dir = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0])))
+        ranges = np.hypot(delta[:, 0], delta[:, 1])
         az_r = np.asarray(wrap_angle(world_dir - prepared.theta_reference_rad))
     base["parallax_corrected"] = position is not None
     # a query keypoint is located to about one pixel of the image it was detected in
@@ -513,10 +547,11 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         reach = window + config.inlier_band_rad + config.distinct_margin_rad
         used = kp.nearest_circular_distance(np.asarray(wrap_angle(az_r - seed[0])), az_q) <= reach
         az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
+        norms_r = None if norms_r is None else norms_r[used]
         ranges = None if ranges is None else ranges[used]
         allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
     candidates = int(len(az_r))
-    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed)
+    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
     outside_votes = np.zeros(0)
     if window is not None:
         inside = np.abs(np.asarray(wrap_angle(az_r[ri] - az_q[qi] - seed[0]))) <= window + config.inlier_band_rad
@@ -574,15 +609,15 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
             position[1],
             pixel_rad,
             config,
+            lookup=tuple(a[k] for a in prepared.depth_points),
         )
         if resected is not None:
             # the inliers were chosen with votes corrected from the *hypothesised* position: when that is off,
             # true pairs fall out of the band and the rest is a biased subset. Choose them again with votes
             # corrected from the resected position, and resect once more (same prior).
             k_all = ref_index[ri]
-            world_vote, _ = prepared.depth.world_headings(
-                prepared.azimuth_rad[k_all], az_q[qi], resected[2], prepared.elevation_rad[k_all]
-            )
+            delta = prepared.depth_points[0][k_all] - np.asarray(resected[2], dtype=np.float64)[None, :]
+            world_vote = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - az_q[qi]))
             again = np.abs(wrap_angle(world_vote - resected[0])) <= config.inlier_band_rad
             if int(again.sum()) >= config.min_inliers and np.any(again != inliers):
                 k = ref_index[ri[again]]
@@ -595,6 +630,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
                     position[1],
                     pixel_rad,
                     config,
+                    lookup=tuple(a[k] for a in prepared.depth_points),
                 )
                 if second is not None:
                     resected, inliers = second, again
@@ -683,14 +719,14 @@ def _pose_from_bearings(
     σ_D as in :func:`resect`), the covariance ``σ̂² (JᵀWJ)⁻¹`` from the residuals' own variance, plus the
     heading floor ``sigma_floor_rad`` and the position floor ``pose_sigma_floor_m``.
     Returns None (the heading-only path then runs) when the pose fails a check; the failed checks are put in
-    ``diag["pose_rejected"]``.
+    ``diag["pose_rejected"]`` (only the inlier checks when they fail: the refinement is then skipped).
     """
     from factorloc.verdicts import Check, Unit, render_checks
     from factorloc.vision import resection as rs
 
     depth = prepared.pose_depth or prepared.depth
-    az_ref, el_ref = prepared.azimuth_rad[ref_index], prepared.elevation_rad[ref_index]
-    pts = depth.world_points(az_ref, el_ref)
+    az_ref = prepared.azimuth_rad[ref_index]
+    pts, ranges_ref, spread_ref = (a[ref_index] for a in prepared.pose_points)
     fit = rs.ransac(
         pts,
         az_query_rad,
@@ -702,13 +738,24 @@ def _pose_from_bearings(
         diag["pose_rejected"] = "no pose fits three bearings"
         return None
     inl = fit.inliers
-    sigma_range = np.maximum(config.depth_relative_sigma * depth.range_at(az_ref, el_ref), 0.5 * depth.spread_at(az_ref, el_ref))
+    n_in = fit.n_inliers
+    checks = [
+        Check.at_least("compass.pose.inliers", "resection inliers", n_in, config.min_pose_inliers, Unit.COUNT),
+        Check.at_least(
+            "compass.pose.inlier_ratio", "resection inlier ratio", n_in / len(inl), config.min_inlier_ratio, Unit.FRACTION
+        ),
+    ]
+    if not all(c.passed for c in checks):
+        # too few bearings agree: no refinement could pass (the two checks only read the RANSAC inliers)
+        failed = [c for c in checks if not c.passed]
+        diag.update(pose_inliers=n_in, pose_runner_up=fit.runner_up, pose_rejected=render_checks(failed))
+        return None
+    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * spread_ref)
     az_ref_world = depth.T_world_reference.theta + az_ref
     d = pts - np.array([fit.pose.x, fit.pose.y])
     r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
     sin_delta = np.abs(np.cos(az_ref_world) * d[:, 1] - np.sin(az_ref_world) * d[:, 0]) / r
     weights = pixel_rad**2 / (pixel_rad**2 + (sigma_range * sin_delta / r) ** 2)
-    groups = _groups(pts, config.pose_group_m)
     groups = _groups(pts, config.pose_group_m)
     final = rs.refine(
         pts[inl],
@@ -719,13 +766,6 @@ def _pose_from_bearings(
         jackknife=True,
         groups=groups[inl],
     )
-    n_in = fit.n_inliers
-    checks = [
-        Check.at_least("compass.pose.inliers", "resection inliers", n_in, config.min_pose_inliers, Unit.COUNT),
-        Check.at_least(
-            "compass.pose.inlier_ratio", "resection inlier ratio", n_in / len(inl), config.min_inlier_ratio, Unit.FRACTION
-        ),
-    ]
     if final is None:
         checks.append(Check.flag("compass.pose.solvable", "resection solvable", False, failure="singular resection"))
     else:
@@ -858,7 +898,13 @@ def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, g
 def _groups(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:
     """Integer labels of the world grid cells (``cell_m``) the points fall in."""
     cells = np.floor(points_xy_m / cell_m).astype(np.int64)
-    _, labels = np.unique(cells, axis=0, return_inverse=True)
+    if not len(cells):
+        return np.zeros(0, dtype=np.int64)
+    # one integer per cell, in the cells' lexicographic (x, then y) order: the labels np.unique(cells, axis=0)
+    # gives, without its row-wise (structured) sort
+    lo = cells.min(axis=0)
+    span_y = int(cells[:, 1].max() - lo[1]) + 1
+    _, labels = np.unique((cells[:, 0] - lo[0]) * span_y + (cells[:, 1] - lo[1]), return_inverse=True)
     return labels.ravel()
 
 
@@ -878,9 +924,7 @@ def _position_sensitivity(
     support than ``n_inliers`` (the mode at the hypothesis), or None.
     """
     (x0, y0), sigma_p = position
-    az_ref = prepared.azimuth_rad[ref_index]
-    el_ref = prepared.elevation_rad[ref_index]
-    pts = prepared.depth.world_points(az_ref, el_ref)
+    pts = prepared.depth_points[0][ref_index]
     steps = sigma_p * np.arange(-2.0, 2.5, 1.0)
     dx, dy = (g.ravel() for g in np.meshgrid(steps, steps, indexing="ij"))
     off = (dx != 0.0) | (dy != 0.0)
@@ -908,6 +952,8 @@ def resect(
     sigma_position_m: float,
     pixel_rad: float,
     config: CompassConfig,
+    *,
+    lookup: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[float, float, tuple[float, float]] | None:
     """Heading (and position) from bearings to known points, with a position prior (Gauss–Newton).
 
@@ -922,24 +968,23 @@ def resect(
     ``min(1, max_effective_inliers / n)`` (correlated errors). The heading's σ is the larger of
     the posterior's and the jackknife's (leave-one-bearing-out, linearized at the solution):
     a few bearings with high leverage (one far point among many on one wall) are otherwise
-    trusted beyond what their scatter supports.
+    trusted beyond what their scatter supports. ``lookup``: the bearings' world points, ranges and range
+    spreads when already looked up (:attr:`PreparedCompass.depth_points` indexed), else read from ``depth``.
 
     Returns
     -------
     (theta_world_rad, sigma_theta_rad, (x_m, y_m)) or None
         None when fewer than ``min_inliers`` bearings remain or the system is singular.
     """
-    pts = depth.world_points(az_ref_rad, el_ref_rad)
-    ranges_ref = depth.range_at(az_ref_rad, el_ref_rad)
+    pts, ranges_ref, spread_ref = depth.lookup(az_ref_rad, el_ref_rad) if lookup is None else lookup
     # a range's σ: relative, or half the range spread around it where the coarse map has a depth edge
-    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * depth.spread_at(az_ref_rad, el_ref_rad))
+    sigma_range = np.maximum(config.depth_relative_sigma * ranges_ref, 0.5 * spread_ref)
     az_ref_world = depth.T_world_reference.theta + np.asarray(az_ref_rad)
     ref_dir = np.column_stack([np.cos(az_ref_world), np.sin(az_ref_world)])
     prior = np.array([T_world_seed.x, T_world_seed.y])
     state = np.array([T_world_seed.x, T_world_seed.y, T_world_seed.theta])
     keep = np.ones(len(pts), dtype=bool)
     info_prior = np.diag([1.0 / sigma_position_m**2, 1.0 / sigma_position_m**2, 0.0])
-    cov = None
     for it in range(8):
         d = pts - state[:2]
         r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-6)
@@ -959,13 +1004,16 @@ def resect(
         g = (jac * w[:, None]).T @ res + info_prior @ np.append(state[:2] - prior, 0.0)
         try:
             step = np.linalg.solve(h, -g)
-            cov = np.linalg.inv(h)
         except np.linalg.LinAlgError:
             return None
         state = state + step
         if np.all(np.abs(step) < 1e-7):
             break
-    if cov is None or not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
+    try:
+        cov = np.linalg.inv(h)  # the normal matrix of the last step (as the covariance was before the loop ended)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(cov)) or cov[2, 2] <= 0.0:
         return None
     var_theta = float(cov[2, 2])
     # jackknife: the heading's change when one bearing is left out (one Gauss–Newton step from the solution,

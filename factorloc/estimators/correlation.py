@@ -70,7 +70,7 @@ from factorloc.verdicts import SeedEvidence
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
-from factorloc.vision.synth import synthesize
+from factorloc.vision.synth import horizon_points, synthesize, wrap_padded
 
 log = logging.getLogger(__name__)
 
@@ -158,7 +158,9 @@ class CorrelationConfig:
 class PreparedCorrelation:
     """The reference pyramid: level k is the grey panorama downscaled by ``ratioᵏ`` (k = 0 … n).
 
-    ``scales`` holds each level's actual (width, height) ratio to level 0.
+    ``scales`` holds each level's actual (width, height) ratio to level 0; ``padded`` is level 0 with its first
+    two columns appended (:func:`factorloc.vision.synth.wrap_padded`), the source of the parallax warp, and
+    ``horizon`` its per-column ranges and points (:func:`factorloc.vision.synth.horizon_points`), both built once.
     """
 
     grid: Grid
@@ -169,6 +171,8 @@ class PreparedCorrelation:
     config: CorrelationConfig
     depth: DepthMap | None = None
     reference_pose: Pose2 = Pose2()
+    padded: np.ndarray | None = None
+    horizon: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig()) -> PreparedCorrelation:
@@ -181,7 +185,9 @@ def prepare(reference: Reference, config: CorrelationConfig = CorrelationConfig(
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
     pyr = _pyramid(gray, grid, config)
     pose = reference.T_world_reference
-    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], pose.theta, problem, config, depth, pose)
+    padded = wrap_padded(pyr["levels"][0]) if depth is not None else None
+    horizon = horizon_points(grid, depth) if depth is not None else None
+    return PreparedCorrelation(grid, pyr["levels"], pyr["scales"], pose.theta, problem, config, depth, pose, padded, horizon)
 
 
 def _pyramid(gray: np.ndarray, grid: Grid, config: CorrelationConfig) -> dict[str, tuple]:
@@ -439,6 +445,8 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
             prepared.depth,
             (p_ref[0], p_ref[1]),
             columns=_reachable_columns(strips, prepared.grid, seed),
+            padded=prepared.padded,
+            horizon=prepared.horizon,
         )
         # only level 0 is correlated after the warp (below): no pyramid of the re-rendered panorama
         prepared = dataclasses.replace(prepared, levels=(synth,), scales=((1.0, 1.0),))

@@ -76,6 +76,17 @@ class DepthMap:
         local = np.column_stack([d * np.cos(az), d * np.sin(az)])
         return self.T_world_reference.transform_points(local)
 
+    def lookup(
+        self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`world_points`, :meth:`range_at` and :meth:`spread_at` of the same directions at once (one cell lookup)."""
+        az = np.asarray(azimuth_rad, dtype=np.float64)
+        r, c = self._cell(az, elevation_rad)
+        d = self.range_m[r, c]
+        spread = np.zeros(np.shape(azimuth_rad)) if self.spread_m is None else self.spread_m[r, c]
+        points = self.T_world_reference.transform_points(np.column_stack([d * np.cos(az), d * np.sin(az)]))
+        return points, d, spread
+
     def world_headings(
         self,
         az_ref_rad: np.ndarray,

@@ -78,7 +78,7 @@ def detect(
     kps, desc = detector.detectAndCompute(img, None)
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2)), None
-    xy = np.array([kp.pt for kp in kps], dtype=np.float64)
+    xy = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)  # the (x, y) of each keypoint, as kp.pt
     if isinstance(detector, cv2.SIFT):
         # OpenCV's SIFT doubles its input for the first octave (pixel i of the double at (i + ½)/2 − ½) but reports
         # positions as i/2: ¼ px right of and below the truth, for every octave. Harmless when both images share it,
@@ -100,6 +100,8 @@ def match(
     norm: int,
     ratio: float,
     allowed: np.ndarray | None = None,
+    *,
+    ref_sq_norms: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nearest-neighbour matches passing Lowe's ratio test, optionally among allowed pairs only.
 
@@ -115,6 +117,9 @@ def match(
         Optional Nq×Nr boolean mask: the candidate reference points of each
         query point (the seeded search window). A query point with a single
         candidate is matched to it only if the distance is small (no ratio test possible).
+    ref_sq_norms
+        Optional squared L2 norms of ``ref_desc``'s rows (float32, :func:`sq_norms`; float descriptors only),
+        when the caller keeps them (a reference's are the same for every query).
 
     Returns
     -------
@@ -125,7 +130,7 @@ def match(
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
     max_single = 0.2 * 8 * query_desc.shape[1] if norm == cv2.NORM_HAMMING else 250.0
     if norm == cv2.NORM_L2:
-        return _match_l2(query_desc, ref_desc, ratio, allowed, max_single)
+        return _match_l2(query_desc, ref_desc, ratio, allowed, max_single, ref_sq_norms)
     matcher = cv2.BFMatcher(norm, crossCheck=False)
     mask = None if allowed is None else np.ascontiguousarray(allowed, dtype=np.uint8)
     k = 2 if len(ref_desc) > 1 else 1
@@ -147,8 +152,19 @@ def match(
     return np.asarray(qi, dtype=int), np.asarray(ri, dtype=int)
 
 
+def sq_norms(desc: np.ndarray) -> np.ndarray:
+    """Squared L2 norms (float32) of the rows of float descriptors (N×D), as :func:`match` uses them."""
+    d = np.ascontiguousarray(desc, dtype=np.float32)
+    return np.einsum("ij,ij->i", d, d)
+
+
 def _match_l2(
-    query_desc: np.ndarray, ref_desc: np.ndarray, ratio: float, allowed: np.ndarray | None, max_single: float
+    query_desc: np.ndarray,
+    ref_desc: np.ndarray,
+    ratio: float,
+    allowed: np.ndarray | None,
+    max_single: float,
+    ref_sq_norms: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`match` for float descriptors: squared L2 distances by one matrix product.
 
@@ -160,17 +176,21 @@ def _match_l2(
     r = np.ascontiguousarray(ref_desc, dtype=np.float32)
     # OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
     # loaded 2-core machine that made this step — and the next ones — 2.5–3× slower in wall time
+    # ‖q‖² is constant along a row: the ranking is made on ‖r‖² − 2·q·r and ‖q‖² added to the two values kept
+    # (OpenCV's SIFT descriptors are integers below 256, so every float32 here is an exact integer: the same
+    # values as summing all three terms first, two passes over the Nq×Nr matrix fewer)
     d2 = cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
-    d2 += np.einsum("ij,ij->i", q, q)[:, None]
-    d2 += np.einsum("ij,ij->i", r, r)[None, :]
-    np.maximum(d2, 0.0, out=d2)
+    d2 += (sq_norms(r) if ref_sq_norms is None else np.asarray(ref_sq_norms, dtype=np.float32))[None, :]
     if allowed is not None:
-        d2[~np.asarray(allowed, dtype=bool)] = np.inf
+        np.copyto(d2, np.inf, where=~np.asarray(allowed, dtype=bool))
     rows = np.arange(len(q))
     best_j = np.argmin(d2, axis=1)
     best = d2[rows, best_j]
     d2[rows, best_j] = np.inf
     second = d2.min(axis=1)
+    qn = sq_norms(q)
+    best = np.maximum(best + qn, 0.0)
+    second = np.maximum(second + qn, 0.0)
     with np.errstate(invalid="ignore"):
         ok = np.where(
             np.isfinite(second),

@@ -137,7 +137,8 @@ def solve_minimal(points_xy_m: np.ndarray, bearings_rad: np.ndarray) -> np.ndarr
     -------
     np.ndarray
         (K, 6, 3) (or (6, 3)) candidate poses ``(x, y, θ)``; rows that are not solutions (complex roots,
-        points behind the robot, a singular set) are NaN. Up to three roots of the cubic, each with θ and θ + π.
+        points behind the robot, a singular set, two of the three points coincident) are NaN. Up to three
+        roots of the cubic, each with θ and θ + π.
     """
     pts = np.asarray(points_xy_m, dtype=np.float64)
     b = np.asarray(bearings_rad, dtype=np.float64)
@@ -148,20 +149,36 @@ def solve_minimal(points_xy_m: np.ndarray, bearings_rad: np.ndarray) -> np.ndarr
         raise InputError(f"solve_minimal needs (K, 3, 2) points and (K, 3) bearings, got {pts.shape} and {b.shape}")
     k = len(pts)
     alpha, beta = _rows(pts, b)
+    a0, a1, a2 = alpha[:, 0], alpha[:, 1], alpha[:, 2]
+    b0, b1, b2 = beta[:, 0], beta[:, 1], beta[:, 2]
 
-    def det(r0: np.ndarray, r1: np.ndarray, r2: np.ndarray) -> np.ndarray:
-        return np.linalg.det(np.stack([r0, r1, r2], axis=1))
+    def cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [
+                u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1],
+                u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2],
+                u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0],
+            ],
+            axis=1,
+        )
 
-    a, be = [alpha[:, i] for i in range(3)], [beta[:, i] for i in range(3)]
-    # det(cα + sβ) = k0 c³ + k1 c² s + k2 c s² + k3 s³ (multilinearity of the determinant in its rows)
-    k0 = det(a[0], a[1], a[2])
-    k1 = det(be[0], a[1], a[2]) + det(a[0], be[1], a[2]) + det(a[0], a[1], be[2])
-    k2 = det(a[0], be[1], be[2]) + det(be[0], a[1], be[2]) + det(be[0], be[1], a[2])
-    k3 = det(be[0], be[1], be[2])
+    def dot(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        return u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1] + u[:, 2] * v[:, 2]
+
+    # det(cα + sβ) = k0 c³ + k1 c² s + k2 c s² + k3 s³ (multilinearity of the determinant in its rows), each
+    # determinant a triple product det(u, v, w) = u·(v × w)
+    aa, ba, ab, bb = cross(a1, a2), cross(b1, a2), cross(a1, b2), cross(b1, b2)
+    k0 = dot(a0, aa)
+    k1 = dot(b0, aa) + dot(a0, ba) + dot(a0, ab)
+    k2 = dot(a0, bb) + dot(b0, ab) + dot(b0, ba)
+    k3 = dot(b0, bb)
     coeffs = np.stack([k3, k2, k1, k0], axis=1)  # in t = tan θ, highest power first
     scale = np.max(np.abs(coeffs), axis=1)
     thetas = np.full((k, 3), np.nan)
-    ok = scale > 0.0
+    # two bearings to one point (a keypoint SIFT reports twice, with two orientations, matched twice) leave a
+    # one-parameter family of poses: the cubic vanishes identically and its "roots" would be rounding noise
+    gap = np.min(np.stack([np.abs(pts[:, i] - pts[:, j]).max(axis=1) for i, j in ((0, 1), (0, 2), (1, 2))]), axis=0)
+    ok = (scale > 0.0) & (gap > 1e-9 * (1.0 + np.abs(pts).max(axis=(1, 2))))
     lead = np.abs(k3) > 1e-9 * np.where(ok, scale, 1.0)
     regular = ok & lead
     if np.any(regular):
@@ -179,20 +196,22 @@ def solve_minimal(points_xy_m: np.ndarray, bearings_rad: np.ndarray) -> np.ndarr
         vals = list(np.arctan(r)) + [math.pi / 2]
         thetas[i, : min(3, len(vals))] = vals[:3]
     cand = np.concatenate([thetas, thetas + math.pi], axis=1)  # (K, 6): the cubic is in tan θ, so θ and θ + π
-    c, s = np.cos(cand), np.sin(cand)
-    rows = c[:, :, None, None] * alpha[:, None] + s[:, :, None, None] * beta[:, None]  # (K, 6, 3, 3)
-    A, rhs = rows[..., :2], -rows[..., 2]
-    ata = np.einsum("kcij,kcil->kcjl", A, A)
-    atb = np.einsum("kcij,kci->kcj", A, rhs)
-    det2 = ata[..., 0, 0] * ata[..., 1, 1] - ata[..., 0, 1] * ata[..., 1, 0]
+    c, s = np.cos(cand)[:, :, None], np.sin(cand)[:, :, None]  # (K, 6, 1)
+    # the rows c·α + s·β of the three bearings (K, 6, 3): A = their first two columns, rhs = −the third;
+    # (x, y) by the 2×2 normal equations AᵀA (x, y) = Aᵀ rhs
+    r0 = c * alpha[:, None, :, 0] + s * beta[:, None, :, 0]
+    r1 = c * alpha[:, None, :, 1] + s * beta[:, None, :, 1]
+    r2 = -(c * alpha[:, None, :, 2] + s * beta[:, None, :, 2])
+    m00, m01, m11 = (r0 * r0).sum(axis=2), (r0 * r1).sum(axis=2), (r1 * r1).sum(axis=2)
+    v0, v1 = (r0 * r2).sum(axis=2), (r1 * r2).sum(axis=2)
+    det2 = m00 * m11 - m01 * m01
     good = np.isfinite(cand) & (np.abs(det2) > 1e-12)
     safe = np.where(good, det2, 1.0)
-    x = (ata[..., 1, 1] * atb[..., 0] - ata[..., 0, 1] * atb[..., 1]) / safe
-    y = (ata[..., 0, 0] * atb[..., 1] - ata[..., 1, 0] * atb[..., 0]) / safe
+    x = (m11 * v0 - m01 * v1) / safe
+    y = (m00 * v1 - m01 * v0) / safe
     # cheirality: each point lies ahead along its bearing, not behind
-    d = pts[:, None, :, :] - np.stack([x, y], axis=-1)[:, :, None, :]
     phi = cand[:, :, None] + b[:, None, :]
-    ahead = d[..., 0] * np.cos(phi) + d[..., 1] * np.sin(phi)
+    ahead = (pts[:, None, :, 0] - x[..., None]) * np.cos(phi) + (pts[:, None, :, 1] - y[..., None]) * np.sin(phi)
     good &= np.all(ahead > 0.0, axis=2)
     out = np.where(good[..., None], np.stack([x, y, np.asarray(wrap_angle(cand))], axis=-1), np.nan)
     return out[0] if single else out
@@ -200,12 +219,16 @@ def solve_minimal(points_xy_m: np.ndarray, bearings_rad: np.ndarray) -> np.ndarr
 
 def _normal(pts: np.ndarray, b: np.ndarray, w: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, ...]:
     d = pts - state[:2]
-    r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
-    res = np.asarray(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - state[2] - b), dtype=np.float64)
-    jac = np.column_stack([d[:, 1] / r2, -d[:, 0] / r2, -np.ones(len(d))])
-    h = (jac * w[:, None]).T @ jac
-    g = (jac * w[:, None]).T @ res
-    return res, jac, h, g, np.sqrt(r2)
+    dx, dy = d[:, 0], d[:, 1]
+    r2 = np.maximum(dx * dx + dy * dy, 1e-12)
+    res = np.asarray(wrap_angle(np.arctan2(dy, dx) - state[2] - b), dtype=np.float64)
+    jac = np.empty((len(d), 3))
+    np.divide(dy, r2, out=jac[:, 0])
+    np.divide(dx, r2, out=jac[:, 1])
+    np.negative(jac[:, 1], out=jac[:, 1])
+    jac[:, 2] = -1.0
+    jw = (jac * w[:, None]).T
+    return res, jac, jw @ jac, jw @ res, np.sqrt(r2)
 
 
 def refine(
@@ -467,8 +490,9 @@ def _rival_support(
     for _ in range(6):  # a few Gauss–Newton steps on its own inliers: where does each hypothesis lead?
         d, r2, res = residuals(state)
         jac = np.stack([d[..., 1] / r2, -d[..., 0] / r2, -np.ones_like(r2)], axis=-1)  # (R, n, 3)
-        h = np.einsum("rni,rn,rnj->rij", jac, wm, jac) + 1e-12 * np.eye(3)
-        g = np.einsum("rni,rn,rn->ri", jac, wm, res)
+        jw = jac * wm[..., None]
+        h = np.matmul(jw.transpose(0, 2, 1), jac) + 1e-12 * np.eye(3)
+        g = np.matmul(jw.transpose(0, 2, 1), res[..., None])[..., 0]
         try:
             state = state - np.linalg.solve(h, g[:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:

@@ -33,6 +33,8 @@ def synthesize(
     *,
     max_depth_jump: float = 0.1,
     columns: np.ndarray | None = None,
+    padded: np.ndarray | None = None,
+    horizon: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Warp the grey reference panorama (H×W float32) to a viewpoint at ``position_xy_m`` (reference frame).
 
@@ -52,6 +54,11 @@ def synthesize(
         Optional boolean mask (W,) of the output columns to render (the others are left 0): the
         correlation renders only the columns its seeded window can reach. The per-column
         geometry (range, magnification) is always computed for all W columns.
+    padded
+        Optional ``gray`` with its first two columns appended (H×(W+2), :func:`wrap_padded`), when the caller
+        keeps one (a reference's is the same for every query); built here otherwise.
+    horizon
+        Optional :func:`horizon_points` of ``grid`` and ``depth`` (the same for every query), built here otherwise.
 
     Returns
     -------
@@ -61,11 +68,9 @@ def synthesize(
         ``D / r'`` relative to the reference (W,).
     """
     h, w = gray.shape
-    u = np.arange(w, dtype=np.float64)
-    az = np.asarray(grid.azimuth_of_column(u), dtype=np.float64)
-    d = depth.range_at(az, np.zeros(w)).astype(np.float64)
+    d, d_cos, d_sin = horizon_points(grid, depth) if horizon is None else horizon
     px, py = float(position_xy_m[0]), float(position_xy_m[1])
-    x, y = d * np.cos(az) - px, d * np.sin(az) - py
+    x, y = d_cos - px, d_sin - py
     r_new = np.hypot(x, y)
     u_new = np.mod((grid.azimuth_col0_rad - np.arctan2(y, x)) / grid.rad_per_px, w)
     # segments between source columns i and i+1 (circular)
@@ -105,12 +110,30 @@ def synthesize(
         src_col, ratio, r_out = src_col[nearest], ratio[nearest], r_out[nearest]
     cols = np.arange(w) if columns is None else np.flatnonzero(columns)
     v = np.arange(h, dtype=np.float32)
-    map_y = np.float32(0.5 * h) + (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
+    map_y = (v[:, None] - np.float32(0.5 * h)) * ratio[cols].astype(np.float32)[None, :]
+    map_y += np.float32(0.5 * h)
     map_x = np.ascontiguousarray(np.broadcast_to(src_col[cols].astype(np.float32)[None, :], (h, cols.size)))
-    padded = np.concatenate([gray, gray[:, :2]], axis=1)
+    if padded is None:
+        padded = wrap_padded(gray)
     warped = cv2.remap(padded, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     if columns is None:
         return warped, r_out, 1.0 / ratio
-    out = np.zeros_like(gray)
-    out[:, cols] = warped
+    out = np.zeros(gray.shape, dtype=gray.dtype)  # calloc'd: the pages of columns never rendered are never touched
+    # the rendered columns are a few runs (one per view, two when it straddles column 0): slice copies, not a
+    # fancy-indexed scatter of every pixel
+    breaks = np.flatnonzero(np.diff(cols) != 1) + 1
+    for lo, hi in zip(np.concatenate([[0], breaks]), np.concatenate([breaks, [cols.size]]), strict=True):
+        out[:, cols[lo] : cols[hi - 1] + 1] = warped[:, lo:hi]
     return out, r_out, 1.0 / ratio
+
+
+def wrap_padded(gray: np.ndarray) -> np.ndarray:
+    """``gray`` (H×W) with its first two columns appended (H×(W+2)): the source :func:`synthesize` remaps from."""
+    return np.concatenate([gray, gray[:, :2]], axis=1)
+
+
+def horizon_points(grid: Grid, depth: DepthMap) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per reference column (W,): the range ``D`` at the horizon (m) and the point ``D·(cos az, sin az)`` (m, reference frame)."""
+    az = np.asarray(grid.azimuth_of_column(np.arange(grid.width_px, dtype=np.float64)), dtype=np.float64)
+    d = depth.range_at(az, np.zeros(grid.width_px)).astype(np.float64)
+    return d, d * np.cos(az), d * np.sin(az)
