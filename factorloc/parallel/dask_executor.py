@@ -42,6 +42,13 @@ __all__ = ["SCHEDULER_ENV", "DaskExecutor", "executor_from_options"]
 #: The environment variable naming a running scheduler (Dask's own convention).
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 
+#: Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536`` in every worker it spawns (to hand freed memory back to the
+#: OS). Setting that variable at all switches off glibc's dynamic mmap threshold, so every array above 128 KiB is
+#: mapped and unmapped afresh, page faults included: a query ran 51 % slower with it (96.5 against 63.8 ms on
+#: one thread, ``benchmarks/bench_parallel.py``, docs/scale.md). A local cluster's workers keep glibc's default
+#: (the value None unsets it, Dask's documented override); a user's own cluster keeps its own setting.
+_TRIM_KEY = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+
 
 def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence[Any]:
     """The task a worker runs: ``fn(chunk, shared)``, checked to give one result per item."""
@@ -144,9 +151,9 @@ class DaskExecutor:
             else:
                 import dask
 
-                overrides = (
-                    {} if self.allowed_failures is None else {"distributed.scheduler.allowed-failures": self.allowed_failures}
-                )
+                overrides: dict[str, Any] = {_TRIM_KEY: None}  # glibc's own allocator tuning (see _TRIM_KEY)
+                if self.allowed_failures is not None:
+                    overrides["distributed.scheduler.allowed-failures"] = self.allowed_failures
                 with dask.config.set(overrides):
                     self._cluster = distributed.LocalCluster(
                         n_workers=self.n_workers,

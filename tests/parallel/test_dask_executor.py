@@ -139,3 +139,14 @@ def test_every_worker_runs_opencv_on_one_thread_also_one_that_replaced_a_dead_on
     dask2.client.wait_for_workers(2, timeout=120)
     threads = dask2.client.run(_opencv_threads)
     assert len(threads) == 2 and set(threads.values()) == {1}
+
+
+def _trim_threshold() -> str | None:
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_local_workers_keep_glibcs_allocator_tuning(dask2: DaskExecutor) -> None:
+    # Dask's nanny would set MALLOC_TRIM_THRESHOLD_=65536, which made every query 51 % slower (docs/scale.md);
+    # the local cluster's workers inherit whatever this process has instead (normally nothing)
+    values = set(dask2.client.run(_trim_threshold).values())
+    assert values == {os.environ.get("MALLOC_TRIM_THRESHOLD_")}
