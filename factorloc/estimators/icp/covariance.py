@@ -110,10 +110,12 @@ def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
     h = result.hessian
     a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
     lam = max(0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b), _WEAK_FLOOR)
-    v = np.array([b, lam - a]) if abs(lam - a) >= abs(lam - c) else np.array([lam - c, b])
-    n = float(np.hypot(v[0], v[1]))
-    v = np.array([1.0, 0.0]) if n == 0.0 else v / n
-    out[:2, :2] = sigma_b**2 * (lam**-p - 1.0 / lam) * np.outer(v, v)
+    v0, v1 = (b, lam - a) if abs(lam - a) >= abs(lam - c) else (lam - c, b)
+    n = float(np.hypot(v0, v1))
+    v0, v1 = (1.0, 0.0) if n == 0.0 else (v0 / n, v1 / n)
+    # σ_b² (λ^-p − λ^-1) v vᵀ in plain floats (the same products as with 2-vectors, without their allocations)
+    f = sigma_b**2 * (lam**-p - 1.0 / lam)
+    out[0, 0], out[0, 1], out[1, 0], out[1, 1] = f * (v0 * v0), f * (v0 * v1), f * (v1 * v0), f * (v1 * v1)
     return out
 
 
