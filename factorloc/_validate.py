@@ -135,6 +135,8 @@ def _checked(name: str, value: Any, **rule: bool) -> float:
 
 def finite_float(name: str, value: Any) -> float:
     """Return ``value`` as a finite float or raise :class:`InputError`."""
+    if type(value) is float and math.isfinite(value):  # the common case (every Pose2 made), without the checks' calls
+        return value
     return _checked(name, value)
 
 

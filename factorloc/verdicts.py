@@ -99,11 +99,18 @@ class Check:
     def __post_init__(self) -> None:
         if not isinstance(self.code, str) or not self.code:
             raise InputError(f"Check.code must be a non-empty string, got {self.code!r}")
-        object.__setattr__(self, "passed", bool(self.passed))
-        object.__setattr__(self, "value", float(self.value))
-        object.__setattr__(self, "limit", float(self.limit))
-        object.__setattr__(self, "comparison", Comparison(self.comparison))
-        object.__setattr__(self, "unit", Unit(self.unit))
+        # normalized only when not already of their type (the builders below pass them so: a rule's check costs
+        # no conversion calls)
+        if type(self.passed) is not bool:
+            object.__setattr__(self, "passed", bool(self.passed))
+        if type(self.value) is not float:
+            object.__setattr__(self, "value", float(self.value))
+        if type(self.limit) is not float:
+            object.__setattr__(self, "limit", float(self.limit))
+        if type(self.comparison) is not Comparison:
+            object.__setattr__(self, "comparison", Comparison(self.comparison))
+        if type(self.unit) is not Unit:
+            object.__setattr__(self, "unit", Unit(self.unit))
 
     @classmethod
     def at_least(

@@ -43,23 +43,33 @@ def _covariance(name: str, value: Any, k: int) -> np.ndarray:
     """The k×k covariance ``value``, checked: symmetric, positive definite, every σ (the square root of a diagonal
     term) in [SIGMA_MIN, SIGMA_MAX] (:mod:`factorloc._validate`) and correlations away from ±1
     (:data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`). Checked before any arithmetic on it, so nothing
-    overflows (the symmetrized mean is taken as ``0.5·a + 0.5·b``)."""
+    overflows (the symmetrized mean is taken as ``0.5·a + 0.5·b``).
+
+    On the k ≤ 3 entries as plain floats (the numpy calls cost more than the arithmetic; the same IEEE operations,
+    so the same verdicts and bits). The correlation matrix's smallest eigenvalue (``numpy.linalg.eigvalsh``) is
+    computed only when a bound from the LDLᵀ pivots does not already put it far above the limit:
+    ``λ_min ≥ det(R) / k^(k−1)`` (the other eigenvalues sum to at most ``tr R = k``), with ``det R`` the product
+    of the pivots over that of the diagonal; ``det R ≥`` :data:`_SURE_CORRELATION_DET` makes ``λ_min`` at least
+    1e-7, five orders above the limit and far beyond the rounding of either computation."""
     cov = float_array(name, value, (k, k))
-    diag = np.diagonal(cov)
-    bad = [i for i in range(k) if diag[i] > 0.0 and not SIGMA_MIN**2 <= diag[i] <= SIGMA_MAX**2]  # ≤ 0: not PD, below
+    c = cov.tolist()
+    bad = [i for i in range(k) if c[i][i] > 0.0 and not SIGMA_MIN**2 <= c[i][i] <= SIGMA_MAX**2]  # ≤ 0: not PD, below
     if bad:
         raise InputError(
             f"{name}[{bad[0]}][{bad[0]}] must be a variance whose σ is in [{SIGMA_MIN:g}, {SIGMA_MAX:g}] (m or rad), "
-            f"got {float(diag[bad[0]])!r}"
+            f"got {c[bad[0]][bad[0]]!r}"
         )
-    if (np.abs(cov - cov.T) > 1e-15 + 1e-9 * np.abs(cov.T)).any():  # np.allclose(rtol=1e-9, atol=1e-15), cheaper
-        raise InputError(f"{name} must be symmetric, got {cov.tolist()}")
-    cov = 0.5 * cov + 0.5 * cov.T
-    if not all(p > 0.0 for p in _cholesky_pivots(cov.tolist())):
+    # np.allclose(rtol=1e-9, atol=1e-15), cheaper
+    if any(abs(c[i][j] - c[j][i]) > 1e-15 + 1e-9 * abs(c[j][i]) for i in range(k) for j in range(k)):
+        raise InputError(f"{name} must be symmetric, got {c}")
+    sym = [[0.5 * c[i][j] + 0.5 * c[j][i] for j in range(k)] for i in range(k)]
+    cov = np.array(sym)
+    pivots = _cholesky_pivots(sym)
+    if not all(p > 0.0 for p in pivots):
         with np.errstate(all="ignore"):
             eig = np.linalg.eigvalsh(cov).tolist() if np.abs(cov).max() <= SIGMA_MAX**2 else "(entries beyond σ² range)"
         raise InputError(f"{name} must be positive definite (all sigmas > 0), got eigenvalues {eig}")
-    if k > 1:
+    if k > 1 and not math.prod(pivots) / math.prod(sym[i][i] for i in range(k)) >= _SURE_CORRELATION_DET:
         scale = 1.0 / np.sqrt(np.diagonal(cov))
         corr_min = float(np.linalg.eigvalsh(cov * np.outer(scale, scale))[0])
         if corr_min < MIN_CORRELATION_EIGENVALUE:
@@ -69,6 +79,11 @@ def _covariance(name: str, value: Any, k: int) -> np.ndarray:
             )
     cov.setflags(write=False)
     return cov
+
+
+#: A correlation matrix (k ≤ 3) whose determinant reaches this has its smallest eigenvalue ≥ 1e-6 / 9 (see
+#: :func:`_covariance`): no need to compute it against :data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`.
+_SURE_CORRELATION_DET = 1e-6
 
 
 def _json_bool(name: str, value: Any) -> bool:

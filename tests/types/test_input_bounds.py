@@ -49,6 +49,33 @@ def test_covariance_with_a_correlation_of_one_is_rejected():
     assert ok.covariance[0, 1] == 0.9
 
 
+def test_correlation_check_agrees_with_the_eigenvalue_on_near_singular_covariances():
+    """The check skips ``eigvalsh`` when the pivots bound the correlation's smallest eigenvalue far above the limit:
+    on 3×3 covariances from well correlated to singular, it rejects exactly those whose correlation matrix has an
+    eigenvalue below MIN_CORRELATION_EIGENVALUE (away from the limit: either answer is right within rounding)."""
+    from factorloc._validate import MIN_CORRELATION_EIGENVALUE
+
+    rng = np.random.default_rng(5)
+    rejected = accepted = 0
+    for gap in np.geomspace(1e-16, 0.5, 400):
+        a = rng.normal(size=(3, 3))
+        u, _, vt = np.linalg.svd(a)
+        cov = (u * np.array([1.0, 0.5, gap])) @ u.T * rng.uniform(1e-6, 1e2)
+        cov = 0.5 * (cov + cov.T)
+        s = 1.0 / np.sqrt(np.diag(cov))
+        lam = float(np.linalg.eigvalsh(cov * np.outer(s, s))[0])
+        if abs(lam - MIN_CORRELATION_EIGENVALUE) < 1e-13 or lam <= 1e-14:
+            continue  # at the limit or numerically singular (the positive-definite test may answer first)
+        try:
+            fl.Estimate("icp", ("x", "y", "theta"), [0.0, 0.0, 0.0], cov)
+            assert lam >= MIN_CORRELATION_EIGENVALUE
+            accepted += 1
+        except InputError as exc:
+            assert lam < MIN_CORRELATION_EIGENVALUE, exc
+            rejected += 1
+    assert rejected >= 10 and accepted >= 300
+
+
 @pytest.mark.parametrize("hfov", [5e-324, 1e-6, math.pi - 1e-6, math.pi])
 def test_camera_hfov_is_bounded_away_from_zero_and_pi(hfov):  # reproducer 4
     with pytest.raises(InputError, match="CameraImage.hfov_rad"):

@@ -90,8 +90,16 @@ def covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
         cov = cov + _weak_direction(result, sb, c.weak_exponent)
     if c.inflation != 1.0:
         cov = c.inflation * cov
-    cov = cov + np.diag([c.sigma_floor_m**2, c.sigma_floor_m**2, c.sigma_floor_rad**2])
+    cov = cov + _floors(c.sigma_floor_m, c.sigma_floor_rad)
     return 0.5 * (cov + cov.T)
+
+
+@lru_cache(maxsize=8)
+def _floors(sigma_floor_m: float, sigma_floor_rad: float) -> np.ndarray:
+    """``diag(f_m², f_m², f_rad²)`` (read-only, made once per configuration)."""
+    out = np.diag([sigma_floor_m**2, sigma_floor_m**2, sigma_floor_rad**2])
+    out.setflags(write=False)
+    return out
 
 
 #: Smallest constraint strength the weak-direction term divides by (below it the geometry is degenerate and the
@@ -110,10 +118,12 @@ def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
     h = result.hessian
     a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
     lam = max(0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b), _WEAK_FLOOR)
-    v = np.array([b, lam - a]) if abs(lam - a) >= abs(lam - c) else np.array([lam - c, b])
-    n = float(np.hypot(v[0], v[1]))
-    v = np.array([1.0, 0.0]) if n == 0.0 else v / n
-    out[:2, :2] = sigma_b**2 * (lam**-p - 1.0 / lam) * np.outer(v, v)
+    v0, v1 = (b, lam - a) if abs(lam - a) >= abs(lam - c) else (lam - c, b)
+    n = float(np.hypot(v0, v1))
+    v0, v1 = (1.0, 0.0) if n == 0.0 else (v0 / n, v1 / n)
+    # σ_b² (λ^-p − λ^-1) v vᵀ in plain floats (the same products as with 2-vectors, without their allocations)
+    f = sigma_b**2 * (lam**-p - 1.0 / lam)
+    out[0, 0], out[0, 1], out[1, 0], out[1, 1] = f * (v0 * v0), f * (v0 * v1), f * (v1 * v0), f * (v1 * v1)
     return out
 
 
@@ -163,7 +173,10 @@ def heading_strength(result: IcpResult) -> float:
     if not lever > 0.0:
         return 0.0
     h = np.asarray(result.hessian, dtype=np.float64)
-    hpp = h[:2, :2] + 1e-9 * max(float(np.trace(h[:2, :2])), 1e-300) * np.eye(2)
+    h00, h01, h10, h11 = float(h[0, 0]), float(h[0, 1]), float(h[1, 0]), float(h[1, 1])
+    reg = 1e-9 * max(h00 + h11, 1e-300)
+    # the position block plus reg·I, entry by entry as numpy adds them (the off-diagonal terms plus 0.0)
+    hpp = np.array([[h00 + reg, h01 + 0.0], [h10 + 0.0, h11 + reg]])
     schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
     value = min(max(schur / lever, 0.0), 1.0)
     return 0.0 if value < ROUNDING_TOLERANCE else value
