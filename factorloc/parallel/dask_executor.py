@@ -117,7 +117,7 @@ class DaskExecutor:
         workers: int | None = None,
         scheduler: str | None = None,
         *,
-        chunks_per_worker: int = 4,
+        chunks_per_worker: int = 16,
         allowed_failures: int | None = None,
         warm_up: bool = True,
     ) -> None:
@@ -221,9 +221,13 @@ class DaskExecutor:
         chunks = chunk_indices(n, size, group)
         # ``shared`` goes to every worker once; each task names it, the worker hands its own copy to the function
         shared_future = client.scatter(shared, broadcast=True, hash=False) if chunks else None
-        # each chunk's items go straight to a worker (not inside the task graph through the scheduler)
-        data = client.scatter([[items[i] for i in idx] for idx in chunks], hash=False) if chunks else []
-        futures = [client.submit(_run_chunk, fn, d, shared_future, pure=False) for d in data]
+        # each chunk's items go straight to a worker (not inside the task graph through the scheduler), one chunk
+        # after another, each submitted as soon as it is there: the first chunks run while the later ones travel
+        data, futures = [], []
+        for idx in chunks:
+            (d,) = client.scatter([[items[i] for i in idx]], hash=False)
+            data.append(d)
+            futures.append(client.submit(_run_chunk, fn, d, shared_future, pure=False))
         index_of = {f.key: idx for f, idx in zip(futures, chunks, strict=True)}
         order = InputOrder(n)
         done = failed = 0
