@@ -29,10 +29,12 @@ Example
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import resource
 import sys
+import threading
 import time
 import uuid
 import weakref
@@ -175,16 +177,24 @@ class _Batch:
 #: The batches this process holds, by token: a copy received again is the same object (each reference prepared
 #: once per process); weak, so a finished batch goes with its localizers.
 _BATCHES: weakref.WeakValueDictionary[str, _Batch] = weakref.WeakValueDictionary()
+#: The last few batches this process restored, held strongly. Dask may drop a worker's replica of the shared batch
+#: while none of that worker's waiting tasks needs it (its active memory manager reduces replicas) and send it
+#: again for a later task; without this the first copy, and its prepared references, would be gone by then.
+_RECENT_BATCHES: collections.deque[_Batch] = collections.deque(maxlen=4)
+_RESTORE_LOCK = threading.Lock()  # a worker may deserialize two copies at once (its comm and task threads)
 
 
 def _restore_batch(
     references: Mapping[str, Reference], config: Config, steps: Sequence[Step] | None, seeded: bool, token: str
 ) -> _Batch:
     """Unpickling a :class:`_Batch`: this process's copy of it when it has one, else a new one."""
-    batch = _BATCHES.get(token)
-    if batch is None:
-        batch = _BATCHES[token] = _Batch(references, config, steps, seeded, token)
-    return batch
+    with _RESTORE_LOCK:
+        batch = _BATCHES.get(token)
+        if batch is None:
+            batch = _BATCHES[token] = _Batch(references, config, steps, seeded, token)
+        if not any(b is batch for b in _RECENT_BATCHES):
+            _RECENT_BATCHES.append(batch)
+        return batch
 
 
 def _localize_chunk(chunk: Sequence[Case], batch: _Batch) -> list[_Localized | TaskFailure]:
