@@ -81,7 +81,14 @@ from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
 from factorloc.verdicts import SeedEvidence
 from factorloc.vision import keypoints as kp
-from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
+from factorloc.vision.depth import (
+    DepthMap,
+    depth_map,
+    headings_from_points,
+    parallax_sigma,
+    position_seed,
+    uncorrected_parallax_sigma,
+)
 from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
 
 log = logging.getLogger(__name__)
@@ -532,9 +539,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     norms_r = prepared.descriptor_sq_norms
     if position is not None:
         # parallax-free: each reference point's direction as seen from the query position (reference orientation)
-        delta = prepared.depth_points[0] - np.asarray(position[0], dtype=np.float64)[None, :]
-        world_dir = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0])))
-        ranges = np.hypot(delta[:, 0], delta[:, 1])
+        world_dir, ranges = headings_from_points(prepared.depth_points[0], position[0])
         az_r = np.asarray(wrap_angle(world_dir - prepared.theta_reference_rad))
     base["parallax_corrected"] = position is not None
     # a query keypoint is located to about one pixel of the image it was detected in
@@ -616,8 +621,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
             # true pairs fall out of the band and the rest is a biased subset. Choose them again with votes
             # corrected from the resected position, and resect once more (same prior).
             k_all = ref_index[ri]
-            delta = prepared.depth_points[0][k_all] - np.asarray(resected[2], dtype=np.float64)[None, :]
-            world_vote = np.asarray(wrap_angle(np.arctan2(delta[:, 1], delta[:, 0]) - az_q[qi]))
+            world_vote, _ = headings_from_points(prepared.depth_points[0][k_all], resected[2], az_q[qi])
             again = np.abs(wrap_angle(world_vote - resected[0])) <= config.inlier_band_rad
             if int(again.sum()) >= config.min_inliers and np.any(again != inliers):
                 k = ref_index[ri[again]]

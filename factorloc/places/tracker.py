@@ -20,8 +20,7 @@
   The chain goes on instead only when the prediction is one the tracker vouches for (position σ ≤
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
-  against: one of σ 9.5 m "agrees" with any pose along a corridor (office tour, seed 1004, query 13: an 11 m
-  correction of a flagged re-localization was reported as ``tracking`` before this rule).
+  against: one with a σ of metres "agrees" with any pose along a corridor (the case is in ``docs/places.md``).
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the

@@ -71,10 +71,7 @@ class DepthMap:
 
     def world_points(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None) -> np.ndarray:
         """World-frame xy (N×2, m) of the points behind reference-frame directions."""
-        az = np.asarray(azimuth_rad, dtype=np.float64)
-        d = self.range_at(az, elevation_rad)
-        local = np.column_stack([d * np.cos(az), d * np.sin(az)])
-        return self.T_world_reference.transform_points(local)
+        return self.lookup(azimuth_rad, elevation_rad)[0]
 
     def lookup(
         self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None = None
@@ -95,10 +92,20 @@ class DepthMap:
         elevation_rad: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Parallax-free world headings ``atan2(P − p) − az_query`` of pairs, and the ranges ``|P − p|`` (m)."""
-        pts = self.world_points(az_ref_rad, elevation_rad)
-        delta = pts - np.asarray(position_xy_m, dtype=np.float64)[None, :]
-        bearing = np.arctan2(delta[:, 1], delta[:, 0])
-        return np.asarray(wrap_angle(bearing - np.asarray(az_query_rad, dtype=np.float64))), np.hypot(delta[:, 0], delta[:, 1])
+        return headings_from_points(self.world_points(az_ref_rad, elevation_rad), position_xy_m, az_query_rad)
+
+
+def headings_from_points(
+    points_world_m: np.ndarray, position_xy_m: tuple[float, float] | np.ndarray, az_query_rad: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """World headings ``atan2(P − p) − az_query`` (rad, wrapped; ``az_query`` omitted: the bearings of the points
+    P (N×2, world frame, m) seen from ``p``) and the ranges ``|P − p|`` (m): what a robot at ``p`` would have to
+    face for each point to appear at its query azimuth (parallax-free, :meth:`DepthMap.world_headings`)."""
+    delta = np.asarray(points_world_m, dtype=np.float64) - np.asarray(position_xy_m, dtype=np.float64)[None, :]
+    bearing = np.arctan2(delta[:, 1], delta[:, 0])
+    if az_query_rad is not None:
+        bearing = bearing - np.asarray(az_query_rad, dtype=np.float64)
+    return np.asarray(wrap_angle(bearing)), np.hypot(delta[:, 0], delta[:, 1])
 
 
 def depth_map(reference: Reference, grid: Grid, camera_height_m: float, shape: tuple[int, int] = (32, 360)) -> DepthMap | None:

@@ -173,10 +173,7 @@ def heading_strength(result: IcpResult) -> float:
     if not lever > 0.0:
         return 0.0
     h = np.asarray(result.hessian, dtype=np.float64)
-    h00, h01, h10, h11 = float(h[0, 0]), float(h[0, 1]), float(h[1, 0]), float(h[1, 1])
-    reg = 1e-9 * max(h00 + h11, 1e-300)
-    # the position block plus reg·I, entry by entry as numpy adds them (the off-diagonal terms plus 0.0)
-    hpp = np.array([[h00 + reg, h01 + 0.0], [h10 + 0.0, h11 + reg]])
+    hpp = h[:2, :2] + 1e-9 * max(float(h[0, 0] + h[1, 1]), 1e-300) * np.eye(2)
     schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
     value = min(max(schur / lever, 0.0), 1.0)
     return 0.0 if value < ROUNDING_TOLERANCE else value
