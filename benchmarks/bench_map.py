@@ -34,6 +34,7 @@ import numpy as np
 from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
 from factorloc.evaluation.map_relations import map_relations
 from factorloc.evaluation.relations import Relations, format_table, read_relations, relations_benchmark, summarize
+from factorloc.evaluation.relations_consistency import relations_consistency
 from factorloc.mapping import MapConfig, build_map
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
@@ -126,6 +127,14 @@ def main() -> None:
         f"{m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f} deg; beyond 3σ of the map's covariance: "
         f"{100 * m['confidently_wrong_rate']:.2f} %"
     )
+    consistency = relations_consistency(rel)
+    print(f"the relations' own consistency: {consistency.summary()}")
+    if len(consistency.members):
+        on_cycles = [rows[i] for i in consistency.members.tolist()]
+        print(
+            f"map on those {len(on_cycles)} relations: {100 * np.mean([r.error_translation_m for r in on_cycles]):.2f} cm / "
+            f"{np.mean([r.error_rotation_deg for r in on_cycles]):.3f} deg"
+        )
     s = result.stats
     print(
         f"{s['places']} places of {len(log.scans)} scans, {s['scan_factors']} consecutive ICP links, "
