@@ -10,6 +10,7 @@ Usage::
     .venv/bin/python benchmarks/bench_map.py --log aces --max-scans 2000 --set loop_every=2
     .venv/bin/python benchmarks/bench_map.py --log mit --pairwise     # + today's pairwise "ours" (minutes)
     .venv/bin/python benchmarks/bench_map.py --log intel --track-every 10  # localizing in the map (issue 19.3)
+    .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --place-covariance local
 
 ``--track-every K`` holds back every K-th scan, maps the rest, tracks the held-back scans through that map with
 the :class:`~factorloc.places.Tracker` (:mod:`factorloc.evaluation.map_tracking`) and reports the relations metric
@@ -95,9 +96,10 @@ def main() -> None:
     ap.add_argument("--track-every", type=int, default=None, metavar="K", help="hold back every K-th scan and track it")
     ap.add_argument(
         "--place-covariance",
-        choices=("marginal", "none", "both"),
-        default="both",
-        help="with --track-every: the places carry the map's marginal covariance, none (poses taken as exact), or both runs",
+        choices=("local", "marginal", "none", "all"),
+        default="all",
+        help="with --track-every: the places carry their covariance relative to their neighbours (local), the map's "
+        "marginal, none (poses taken as exact), or all three runs",
     )
     ap.add_argument("--json", type=Path, default=None, help="write the summary rows and stats as JSON")
     args = ap.parse_args()
@@ -107,7 +109,7 @@ def main() -> None:
     log, rel = _prefix(log, rel, args.max_scans)
     config = _config(args.set)
     if args.track_every is not None:
-        variants = ["marginal", "none"] if args.place_covariance == "both" else [args.place_covariance]
+        variants = ["local", "marginal", "none"] if args.place_covariance == "all" else [args.place_covariance]
         _track(log, rel, config, args.track_every, name, args.json, variants)
         return
     t0, c0 = time.perf_counter(), time.process_time()
@@ -164,7 +166,7 @@ def _track(
     reduced = None
     summary = {}
     for variant in variants:
-        track = track_in_map(log, every, config, place_covariance=variant == "marginal", map_result=reduced)
+        track = track_in_map(log, every, config, place_covariance=variant, map_result=reduced)
         if reduced is None:
             reduced, map_s = track.map, track.map_seconds
         rows = track_relations(track, rel, log)

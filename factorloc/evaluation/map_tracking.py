@@ -32,6 +32,7 @@ from factorloc.evaluation.relations import Relations
 from factorloc.evaluation.relations_report import RelationResult
 from factorloc.geometry import Pose2
 from factorloc.mapping import MapConfig, MapResult, build_map
+from factorloc.mapping.result import PlaceCovariance
 from factorloc.odometry_model import CHI2_3SIGMA_2DOF
 
 __all__ = ["MapTrack", "compare_with_map", "hold_back", "track_in_map", "track_relations"]
@@ -92,14 +93,14 @@ def track_in_map(
     map_config: MapConfig | None = None,
     tracker_config=None,  # noqa: ANN001 - TrackerConfig (imported lazily: factorloc.places is heavy)
     *,
-    place_covariance: bool = True,
+    place_covariance: PlaceCovariance | bool = "marginal",
     map_result: MapResult | None = None,
 ) -> MapTrack:
     """Map ``log`` without its held-back scans, then track those through the map (see the module docstring).
 
     ``tracker_config``'s ``initial_pose`` is replaced by the map's estimate of the first held-back scan;
-    ``place_covariance`` whether the places carry the map's marginal covariance
-    (:meth:`~factorloc.mapping.MapResult.place_map`); ``map_result`` a map already built from the same held-back
+    ``place_covariance`` what covariance the places carry (:data:`~factorloc.mapping.result.PlaceCovariance`,
+    :meth:`~factorloc.mapping.MapResult.place_map`); ``map_result`` a map already built from the same held-back
     log (another tracker run on it; ``map_seconds`` is then NaN).
     """
     import time

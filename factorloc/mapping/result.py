@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -13,7 +13,13 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.verdicts import Check
 
-__all__ = ["Closure", "MapResult", "MappedPlace", "relative_covariance"]
+__all__ = ["Closure", "MapResult", "MappedPlace", "PlaceCovariance", "relative_covariance"]
+
+#: What each place of :meth:`MapResult.place_map` carries as the covariance of its pose: ``"local"`` its
+#: uncertainty relative to the places around it (:meth:`MapResult.local_covariances`), ``"marginal"`` the graph's
+#: absolute marginal in the map frame, ``"none"`` nothing (the pose taken as exact).
+PlaceCovariance = Literal["local", "marginal", "none"]
+_PLACE_COVARIANCES = ("local", "marginal", "none")
 
 if TYPE_CHECKING:
     from factorloc.places import PlaceMap
@@ -152,29 +158,66 @@ class MapResult:
             for k in range(len(self))
         )
 
-    def place_map(self, prefix: str = "place", *, covariance: bool = True) -> PlaceMap:
+    def place_map(self, prefix: str = "place", *, covariance: PlaceCovariance | bool = "marginal") -> PlaceMap:
         """The map as a :class:`~factorloc.places.PlaceMap` for localization and tracking in it.
 
         Each place becomes a :class:`~factorloc.places.Place` ``f"{prefix}{id:05d}"`` whose reference is its scan
-        (robot frame at the place), posed at the optimized ``T_world_place`` with its marginal covariance, so that
-        :class:`~factorloc.places.Tracker` and :class:`~factorloc.places.MultiPlaceLocalizer` account for the map's
-        own uncertainty. ``covariance=False`` leaves the places without covariance (their poses taken as exact: the
-        map is the frame one localizes in). The marginal is the absolute one in the map frame (anchored at the first
-        place), growing with the distance from it — on the Intel log's first 600 scans to 0.6 m × 1.1 m and 5.8°
-        — while neighbouring places share most of that error; added to every place factor as independent noise it
-        makes the factors weaker than the odometry chain (``docs/mapping.md``, "Localizing in the map").
+        (robot frame at the place), posed at the optimized ``T_world_place``, with the covariance ``covariance``
+        names (:data:`PlaceCovariance`; ``True`` / ``False`` are ``"marginal"`` / ``"none"``), which
+        :class:`~factorloc.places.Tracker` and :class:`~factorloc.places.MultiPlaceLocalizer` add to every factor of
+        the place. The marginal is the absolute one in the map frame (anchored at the first place), growing with
+        the distance from it, while neighbouring places share most of that error: added to every place factor as
+        independent noise it makes the factors weaker than the odometry chain. ``"local"`` is the place's
+        uncertainty relative to its neighbours, what a track through neighbouring places sees
+        (``docs/mapping.md``, "Localizing in the map").
         """
         from factorloc.places import Place, PlaceMap
         from factorloc.types import Reference, Scan
 
+        kind = ("marginal" if covariance else "none") if isinstance(covariance, bool) else covariance
+        if kind not in _PLACE_COVARIANCES:
+            raise InputError(f"covariance must be one of {_PLACE_COVARIANCES} (or a bool), got {covariance!r}")
+        covs = self.local_covariances() if kind == "local" else self.place_covariances
         return PlaceMap(
             [
                 Place(
-                    f"{prefix}{p.id:05d}", Reference(scan=Scan(p.points_m)), p.T_world_place, p.covariance if covariance else None
+                    f"{prefix}{p.id:05d}", Reference(scan=Scan(p.points_m)), p.T_world_place, None if kind == "none" else covs[k]
                 )
-                for p in self.places()
+                for k, p in enumerate(self.places())
             ]
         )
+
+    def local_covariances(self, radius_m: float = 8.0, other_pass_s: float = 30.0) -> np.ndarray:
+        """(P, 3, 3) each place's covariance relative to the places around it (world frame, x, y, θ; m², rad²).
+
+        For place ``p`` the covariance of ``T_q⁻¹·T_p`` (:func:`relative_covariance` from the graph's joint marginal
+        of the two, rotated into the world frame at ``p``) for two neighbours ``q``: the place before it in the run
+        (after it, for the first), and the nearest place within ``radius_m`` (m) taken more than ``other_pass_s``
+        (s) away in time — the same spot on another pass, where a map's errors show (a loop closed with a small
+        error); the larger of the two (by the trace of the position block). A track moving through neighbouring
+        places sees their errors relative to each other, not the map frame's drift from its first place, which the
+        track shares. Zeros for a map of one place.
+        """
+        P = len(self)
+        out = np.zeros((P, 3, 3))
+        if P < 2:
+            return out
+        xy = self.place_poses[:, :2]
+        stamps = self.place_stamps_s
+        for p in range(P):
+            neighbours = [p - 1 if p > 0 else 1]
+            d = np.hypot(xy[:, 0] - xy[p, 0], xy[:, 1] - xy[p, 1])
+            d[np.abs(stamps - stamps[p]) <= other_pass_s] = np.inf
+            q = int(np.argmin(d))
+            if d[q] <= radius_m:
+                neighbours.append(q)
+            best = -1.0
+            for q in neighbours:
+                joint = self.joint_marginal(q, p)
+                rel = world_covariance(relative_covariance(self.pose(q), self.pose(p), joint), float(self.place_poses[p, 2]))
+                if rel[0, 0] + rel[1, 1] > best:
+                    best, out[p] = rel[0, 0] + rel[1, 1], rel
+        return out
 
     def joint_marginal(self, place_a: int, place_b: int) -> np.ndarray:
         """6×6 joint marginal covariance of two places (GTSAM's body-frame tangents, blocks a then b)."""

@@ -11,9 +11,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
+from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.mapping import MapResult
+from factorloc.mapping.result import relative_covariance
 from factorloc.places import PlaceMap, Tracker, TrackerConfig, TrackState
 from factorloc.types import Odometry, Query
 
@@ -33,9 +36,33 @@ def test_the_map_is_a_place_map_with_its_marginals(sim_map: MapResult, tmp_path)
     assert loaded.same_as(pm)
 
 
-def test_held_back_scans_are_tracked_through_the_map_within_centimetres(sim_run, sim_map: MapResult) -> None:
+def test_local_covariances_are_the_places_relative_uncertainty(sim_run, sim_map: MapResult) -> None:
+    """Each place's local covariance is its uncertainty relative to a neighbour, at least that to the place before
+    it, and honest about the map's true relative error of the two places."""
     log, true = sim_run
-    pm = sim_map.place_map()
+    local = sim_map.local_covariances()
+    P = len(sim_map)
+    assert local.shape == (P, 3, 3) and np.all(np.linalg.eigvalsh(local) > 0)
+    # the place before each place: the map's relative pose of the two against the truth, under that covariance
+    beyond = 0
+    for p in range(1, P):
+        q = p - 1
+        Tq, Tp = sim_map.pose(q), sim_map.pose(p)
+        body = relative_covariance(Tq, Tp, sim_map.joint_marginal(q, p))
+        assert np.trace(local[p][:2, :2]) >= np.trace(body[:2, :2]) - 1e-15  # the larger of the neighbours
+        tq, tp = (Pose2.from_array(true[int(sim_map.place_scan_indices[k])]) for k in (q, p))
+        err = tq.between(tp).between(Tq.between(Tp))  # estimate in the truth's relative frame (body of p)
+        e = np.array([err.x, err.y, err.theta])
+        beyond += float(e @ np.linalg.solve(body, e)) > 14.16  # χ²(3 dof) at 3σ
+    assert beyond <= max(1, 0.02 * P), f"{beyond} of {P - 1} neighbouring place pairs beyond 3σ"
+    with pytest.raises(InputError, match="covariance must be one of"):
+        sim_map.place_map(covariance="absolute")
+
+
+@pytest.mark.parametrize("covariance", ["marginal", "local"])
+def test_held_back_scans_are_tracked_through_the_map_within_centimetres(sim_run, sim_map: MapResult, covariance) -> None:
+    log, true = sim_run
+    pm = sim_map.place_map(covariance=covariance)
     held = _held_back(sim_map, 40)
     assert len(held) == 40
     i0 = int(sim_map.place_scan_indices[0])
