@@ -48,21 +48,32 @@ def map_command(
     scan_topic: Annotated[str, typer.Option("--scan-topic", help="sensor_msgs/LaserScan topic of a bag.")] = "/scan",
     odom_topic: Annotated[str, typer.Option("--odom-topic", help="nav_msgs/Odometry topic of a bag.")] = "/odom",
     no_figure: Annotated[bool, typer.Option("--no-figure", help="Do not draw map.png.")] = False,
+    place_covariance: Annotated[
+        str,
+        typer.Option(
+            "--place-covariance",
+            help="What place_map/'s places carry: marginal (the graph's, map frame), local (relative to their "
+            "neighbours) or none (docs/mapping.md).",
+        ),
+    ] = "marginal",
 ) -> None:
     """Map a building from one run: places, loop closures verified by ICP, a robust pose graph (docs/mapping.md)."""
-    from factorloc.errors import FactorlocError
+    from factorloc.errors import FactorlocError, InputError
     from factorloc.mapping import MapConfig, build_map
     from factorloc.mapping.io import save_map
+    from factorloc.mapping.result import PLACE_COVARIANCES
 
     t0 = time.perf_counter()
     try:
+        if place_covariance not in PLACE_COVARIANCES:
+            raise InputError(f"--place-covariance must be one of {', '.join(PLACE_COVARIANCES)}, got {place_covariance!r}")
         config = MapConfig(
             place_spacing_m=spacing, place_turn_rad=math.radians(turn_deg), robust=robust, refine_scans=not no_refine
         )
         log = read_log(log_path, scan_topic, odom_topic, max_scans)
         t_read = time.perf_counter() - t0
         result = build_map(log, config)
-        paths = save_map(result, out, figure=not no_figure)
+        paths = save_map(result, out, figure=not no_figure, place_covariance=place_covariance)
     except FactorlocError as exc:
         console.print(f"[bold red]error:[/] {exc}")
         raise typer.Exit(code=2) from None

@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from typer.testing import CliRunner
 
 from factorloc.cli import app
+from factorloc.places import PlaceMap
 
 runner = CliRunner()
 
@@ -28,3 +30,22 @@ def test_map_reports_a_bad_option_as_one_error_line(tmp_path: Path) -> None:
     result = runner.invoke(app, ["map", str(tmp_path / "missing.bag"), str(tmp_path / "out"), "--robust", "tukey"])
     assert result.exit_code == 2
     assert "error:" in result.output and "robust" in result.output
+
+
+def test_map_writes_local_place_covariances_on_request(shared_data: Path, tmp_path: Path) -> None:
+    """--place-covariance local: place_map/'s places carry their covariance relative to their neighbours, below the
+    marginal's (which grows with the distance from the first place)."""
+    bag = shared_data / "laser" / "intel.sort.bag"
+    paths = {}
+    for kind in ("marginal", "local"):
+        out = tmp_path / kind
+        result = runner.invoke(app, ["map", str(bag), str(out), "--max-scans", "400", "--no-figure", "--place-covariance", kind])
+        assert result.exit_code == 0, result.output
+        paths[kind] = out / "place_map"
+    marginal, local = (PlaceMap.load(paths[k]) for k in ("marginal", "local"))
+    last_m, last_l = list(marginal)[-1].covariance, list(local)[-1].covariance
+    assert np.trace(last_l[:2, :2]) < np.trace(last_m[:2, :2])
+    assert np.all(np.linalg.eigvalsh(last_l) > 0.0)
+    bad = runner.invoke(app, ["map", str(bag), str(tmp_path / "bad"), "--max-scans", "50", "--place-covariance", "absolute"])
+    assert bad.exit_code == 2 and "--place-covariance must be one of" in bad.output
+    assert not (tmp_path / "bad").exists()

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from factorloc.datasets.tum import write_tum_trajectory
-from factorloc.mapping.result import MapResult
+from factorloc.mapping.result import MapResult, PlaceCovariance
 
 __all__ = ["map_to_dict", "save_map"]
 
@@ -44,17 +44,20 @@ def map_to_dict(result: MapResult) -> dict[str, Any]:
     return {"frame": "odometry frame at the first place", "places": places, "closures": closures, "stats": dict(result.stats)}
 
 
-def save_map(result: MapResult, out_dir: str | Path, *, figure: bool = True) -> list[Path]:
+def save_map(
+    result: MapResult, out_dir: str | Path, *, figure: bool = True, place_covariance: PlaceCovariance = "marginal"
+) -> list[Path]:
     """Write ``places.json`` (:func:`map_to_dict`), ``trajectory.tum`` (every scan's pose), ``place_map/`` (the map
-    as a :class:`~factorloc.places.PlaceMap` scenario directory, :meth:`MapResult.place_map`; what
-    ``factorloc track --map`` and ``PlaceMap.load`` read) and, with ``figure``, ``map.png``
-    (:func:`factorloc.mapping.figure.map_figure`) into ``out_dir``; returns the paths written."""
+    as a :class:`~factorloc.places.PlaceMap` scenario directory, :meth:`MapResult.place_map` with
+    ``place_covariance``; what ``factorloc track --map`` and ``PlaceMap.load`` read) and, with ``figure``,
+    ``map.png`` (:func:`factorloc.mapping.figure.map_figure`) into ``out_dir``; returns the paths written."""
+    place_map = result.place_map(covariance=place_covariance)  # a wrong choice fails before anything is written
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = [out / "places.json"]
     paths[0].write_text(json.dumps(map_to_dict(result), indent=1), encoding="utf-8")
     paths.append(write_tum_trajectory(out / "trajectory.tum", result.scan_stamps_s, result.scan_poses))
-    paths.append(result.place_map().save(out / "place_map", name="map", overwrite=True))
+    paths.append(place_map.save(out / "place_map", name="map", overwrite=True))
     if figure:
         from factorloc.mapping.figure import map_figure
 

@@ -13,13 +13,14 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.verdicts import Check
 
-__all__ = ["Closure", "MapResult", "MappedPlace", "PlaceCovariance", "relative_covariance"]
+__all__ = ["PLACE_COVARIANCES", "Closure", "MapResult", "MappedPlace", "PlaceCovariance", "relative_covariance"]
 
 #: What each place of :meth:`MapResult.place_map` carries as the covariance of its pose: ``"local"`` its
 #: uncertainty relative to the places around it (:meth:`MapResult.local_covariances`), ``"marginal"`` the graph's
 #: absolute marginal in the map frame, ``"none"`` nothing (the pose taken as exact).
 PlaceCovariance = Literal["local", "marginal", "none"]
-_PLACE_COVARIANCES = ("local", "marginal", "none")
+#: The choices of :data:`PlaceCovariance`.
+PLACE_COVARIANCES = ("local", "marginal", "none")
 
 if TYPE_CHECKING:
     from factorloc.places import PlaceMap
@@ -175,8 +176,8 @@ class MapResult:
         from factorloc.types import Reference, Scan
 
         kind = ("marginal" if covariance else "none") if isinstance(covariance, bool) else covariance
-        if kind not in _PLACE_COVARIANCES:
-            raise InputError(f"covariance must be one of {_PLACE_COVARIANCES} (or a bool), got {covariance!r}")
+        if kind not in PLACE_COVARIANCES:
+            raise InputError(f"covariance must be one of {PLACE_COVARIANCES} (or a bool), got {covariance!r}")
         covs = self.local_covariances() if kind == "local" else self.place_covariances
         return PlaceMap(
             [
