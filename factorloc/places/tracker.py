@@ -279,7 +279,8 @@ class Tracker:
             return self._relocalize(query, None, checks, t0, "no pose yet" if self._last is None else "the odometry broke")
         Q = self._increment_covariance(delta)
         pred, pred_cov = compose_with_covariance(*self._last, delta, Q)
-        in_view = [pid for pid, _ in places_in_view(self.place_map, pred, pred_cov, cfg.choice)]
+        scan = None if query.scan is None else query.scan.points_m
+        in_view = [pid for pid, _ in places_in_view(self.place_map, pred, pred_cov, cfg.choice, scan)]
         accepted: list[Estimate] = []
         reports: tuple[StepReport, ...] = ()
         if in_view:

@@ -12,6 +12,7 @@ from factorloc.datasets import Scenario, ScenarioReference, load_scenario
 from factorloc.errors import InputError, UnknownIdError
 from factorloc.geometry import Pose2
 from factorloc.places import PLACE_COVARIANCE_KEY, ChoiceConfig, Place, PlaceMap, places_in_view
+from factorloc.places.choose import view_overlap
 from factorloc.types import Reference, Scan
 
 
@@ -81,3 +82,41 @@ def test_places_in_view_nearest_first_within_reach_plus_uncertainty() -> None:
     found = places_in_view(m, Pose2(0, 0, 0), np.diag([0.04, 0.01, 0.01]))  # 3σ = 0.6 m more
     assert [pid for pid, _ in found] == ["near", "mid"]
     assert len(places_in_view(m, Pose2(0, 0, 0), np.diag([100.0, 1, 1]), ChoiceConfig(k=2))) == 2
+
+
+def _half_scan(radius_m: float = 3.0, n: int = 180) -> np.ndarray:
+    """A 180° scan (x forward, bearings −90°…+90°) of a round room, robot frame."""
+    a = np.linspace(-math.pi / 2, math.pi / 2, n)
+    return np.column_stack([radius_m * np.cos(a), radius_m * np.sin(a)])
+
+
+def test_view_overlap_counts_the_place_points_in_the_directions_the_query_sees() -> None:
+    half = _half_scan()
+    here = Pose2(0.0, 0.0, 0.0)
+    assert view_overlap(half, here, here, half) == 1.0
+    assert view_overlap(half, Pose2(0.0, 0.0, math.pi), here, half) < 0.05  # facing apart: only the edge sectors
+    turned = view_overlap(half, Pose2(0.0, 0.0, math.pi / 2), here, half)
+    assert turned == pytest.approx(0.5, abs=0.03)  # a quarter turn shares half the view
+    ring = _ring_scan(3.0).points_m
+    assert view_overlap(ring, Pose2(0.0, 0.0, 1.0), here, ring) == 1.0  # 360° scans: always the whole view
+    assert view_overlap(np.zeros((0, 2)), here, here, half) == 0.0
+
+
+def test_places_facing_away_come_after_those_sharing_the_view() -> None:
+    """180° scans: of three places within reach, the nearest faces the other way; with the query's scan given the
+    two that share its view are chosen (k = 2), nearest first; without it, the distance alone decides."""
+    half = Scan(_half_scan())
+    m = PlaceMap(
+        [
+            Place("behind", Reference(scan=half), Pose2(0.1, 0.0, math.pi)),
+            Place("ahead", Reference(scan=half), Pose2(0.5, 0.0, 0.1)),
+            Place("side", Reference(scan=half), Pose2(0.3, 0.2, -0.2)),
+        ]
+    )
+    cfg = ChoiceConfig(k=2)
+    assert [pid for pid, _ in places_in_view(m, Pose2(0, 0, 0), None, cfg)] == ["behind", "side"]
+    chosen = places_in_view(m, Pose2(0, 0, 0), None, cfg, half.points_m)
+    assert [pid for pid, _ in chosen] == ["side", "ahead"]
+    assert chosen[0][1] == pytest.approx(math.hypot(0.3, 0.2))
+    with pytest.raises(InputError, match="min_overlap"):
+        ChoiceConfig(min_overlap=1.5)
