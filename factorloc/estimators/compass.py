@@ -121,6 +121,10 @@ class CompassConfig:
         The fewest pixels a query view is reduced to before detection (see ``query_scale``).
     query_octave_layers
         SIFT's layers per octave for the query views (OpenCV's ``nOctaveLayers``).
+    one_keypoint_per_location
+        Keep one keypoint (and descriptor) per detected position, in the reference and in the query views
+        (:func:`factorloc.vision.keypoints.one_per_location_index`): SIFT reports a keypoint once per dominant
+        orientation, and copies of one point matched twice would be counted as independent bearings.
     query_sift_sigma
         SIFT's assumed input blur for the query views (OpenCV's ``sigma``; 1.6 in Lowe's paper):
         1.2 keeps ~30 % more keypoints on the downscaled views, at no extra cost.
@@ -245,6 +249,7 @@ class CompassConfig:
     reference_scale: float = 1.0
     query_sift_sigma: float = 1.2
     query_octave_layers: int = 3
+    one_keypoint_per_location: bool = False
     query_min_detect_px: int = 12000
     fast_threshold: int = 10
     ratio: float = 0.8
@@ -361,7 +366,13 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     problem = texture_problem(gray)
     det = kp.make_detector(config.detector, config.n_features_reference, config.fast_threshold)
     if problem is None:
-        xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4), scale=config.reference_scale)
+        xy, desc = kp.detect(
+            gray,
+            det,
+            wrap_pad_px=min(64, grid.width_px // 4),
+            scale=config.reference_scale,
+            one_per_location=config.one_keypoint_per_location,
+        )
     else:
         xy, desc = np.zeros((0, 2)), None
     if problem is None and (desc is None or len(xy) < config.min_inliers):
@@ -522,7 +533,13 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     scales = []
     for s in strips:
         scales.append(detection_scale(s.gray.size, config))
-        xy, desc = kp.detect(s.gray, det, wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0, scale=scales[-1])
+        xy, desc = kp.detect(
+            s.gray,
+            det,
+            wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0,
+            scale=scales[-1],
+            one_per_location=config.one_keypoint_per_location,
+        )
         if desc is None or len(xy) == 0:
             continue
         az_q_list.append(np.asarray(s.azimuth_of_column(xy[:, 0]), dtype=np.float64))
