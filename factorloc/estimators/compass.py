@@ -571,9 +571,13 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
         norms_r = None if norms_r is None else norms_r[used]
         ranges = None if ranges is None else ranges[used]
-        allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
     candidates = int(len(az_r))
-    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
+    if window is not None and config.detector == "sift":
+        qi, ri = kp.match_in_window(desc_q, az_q, desc_r, az_r, seed[0], reach, config.ratio, ref_sq_norms=norms_r)
+    else:
+        if window is not None:
+            allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
+        qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
     outside_votes = np.zeros(0)
     if window is not None:
         inside = np.abs(np.asarray(wrap_angle(az_r[ri] - az_q[qi] - seed[0]))) <= window + config.inlier_band_rad

@@ -185,6 +185,87 @@ def match(
     return np.asarray(qi, dtype=int), np.asarray(ri, dtype=int)
 
 
+def match_in_window(
+    query_desc: np.ndarray,
+    query_az_rad: np.ndarray,
+    ref_desc: np.ndarray,
+    ref_az_rad: np.ndarray,
+    offset_rad: float,
+    reach_rad: float,
+    ratio: float,
+    *,
+    ref_sq_norms: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`match` of float (L2) descriptors among the pairs of a circular window of azimuths.
+
+    The same pairs as ``match(query_desc, ref_desc, cv2.NORM_L2, ratio, allowed, ref_sq_norms=...)`` with
+    ``allowed = circular_abs_diff(ref_az_rad, query_az_rad, offset_rad) <= reach_rad`` (a reference point is a
+    candidate of a query point when ``|wrap(az_ref − az_query − offset)| ≤ reach``): the mask, the squared norms
+    and the two smallest distances per query point in one compiled pass over the product
+    (:func:`factorloc.vision._kernels.two_nearest_in_window`, the same float32 operations).
+
+    Parameters
+    ----------
+    query_desc, ref_desc
+        Float descriptors (Nq×D, Nr×D).
+    query_az_rad, ref_az_rad
+        Their azimuths (rad), (Nq,) and (Nr,).
+    offset_rad, reach_rad
+        The window's centre offset and half-width (rad).
+    ratio
+        Lowe's ratio (see :func:`match`).
+    ref_sq_norms
+        Optional squared norms of ``ref_desc``'s rows (:func:`sq_norms`).
+
+    Returns
+    -------
+    (query_index, ref_index)
+        Integer arrays of equal length, in ascending query order.
+    """
+    if query_desc is None or ref_desc is None or len(query_desc) == 0 or len(ref_desc) == 0:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    from factorloc.vision._kernels import two_nearest_in_window
+
+    q = np.ascontiguousarray(query_desc, dtype=np.float32)
+    r = np.ascontiguousarray(ref_desc, dtype=np.float32)
+    d2 = _product(q, r)
+    norms = sq_norms(r) if ref_sq_norms is None else np.ascontiguousarray(ref_sq_norms, dtype=np.float32)
+    # the operands of circular_abs_diff, rounded to float32 as it rounds them
+    b = (np.asarray(query_az_rad, dtype=np.float64) + offset_rad).astype(np.float32)
+    a = np.ascontiguousarray(ref_az_rad, dtype=np.float32)
+    best_j, best, second = two_nearest_in_window(
+        np.ascontiguousarray(d2), norms, a, b, np.float32(reach_rad), np.float32(2.0 * math.pi)
+    )
+    ok = _ratio_passes(best, second, sq_norms(q), ratio, _MAX_SINGLE_L2)
+    return np.flatnonzero(ok), best_j[ok].astype(int)
+
+
+def _product(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``−2 q·rᵀ`` (Nq×Nr float32) by OpenCV's gemm.
+
+    OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
+    loaded 2-core machine that made the matching — and the next steps — 2.5–3× slower in wall time. OpenCV hands a
+    product to its BLAS (the LAPACK HAL) only from 100 rows; below, its own loop is ~10× slower (99 × 3613 × 128:
+    11 ms, 100 × 3613 × 128: 0.95 ms): fewer rows are padded with zeros, their products dropped (the same values).
+    """
+    if 0 < len(q) < _GEMM_MIN_ROWS:
+        padded = np.vstack([q, np.zeros((_GEMM_MIN_ROWS - len(q), q.shape[1]), dtype=np.float32)])
+        return cv2.gemm(padded, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)[: len(q)]
+    return cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
+
+
+def _ratio_passes(best: np.ndarray, second: np.ndarray, q_sq_norms: np.ndarray, ratio: float, max_single: float) -> np.ndarray:
+    """Lowe's ratio test on the two smallest ``‖r‖² − 2 q·r`` of each row (``‖q‖²`` added here); one candidate: ``max_single``."""
+    best = np.maximum(best + q_sq_norms, 0.0)
+    second = np.maximum(second + q_sq_norms, 0.0)
+    with np.errstate(invalid="ignore"):
+        return np.where(
+            np.isfinite(second),
+            np.sqrt(best) < ratio * np.sqrt(second),
+            np.sqrt(best) < max_single,
+        ) & np.isfinite(best)
+
+
 def sq_norms(desc: np.ndarray) -> np.ndarray:
     """Squared L2 norms (float32) of the rows of float descriptors (N×D), as :func:`match` uses them."""
     d = np.ascontiguousarray(desc, dtype=np.float32)
@@ -207,18 +288,10 @@ def _match_l2(
     """
     q = np.ascontiguousarray(query_desc, dtype=np.float32)
     r = np.ascontiguousarray(ref_desc, dtype=np.float32)
-    # OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
-    # loaded 2-core machine that made this step — and the next ones — 2.5–3× slower in wall time
     # ‖q‖² is constant along a row: the ranking is made on ‖r‖² − 2·q·r and ‖q‖² added to the two values kept
     # (OpenCV's SIFT descriptors are integers below 256, so every float32 here is an exact integer: the same
     # values as summing all three terms first, two passes over the Nq×Nr matrix fewer)
-    if 0 < len(q) < _GEMM_MIN_ROWS:
-        # OpenCV hands a product to its BLAS (the LAPACK HAL) only when it has >= 100 rows; below, its own loop is
-        # ~10x slower (99 x 3613 x 128: 11 ms, 100 x 3613 x 128: 0.95 ms). Zero rows padded and dropped: the same values
-        padded = np.vstack([q, np.zeros((_GEMM_MIN_ROWS - len(q), q.shape[1]), dtype=np.float32)])
-        d2 = cv2.gemm(padded, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)[: len(q)]
-    else:
-        d2 = cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
+    d2 = _product(q, r)
     d2 += (sq_norms(r) if ref_sq_norms is None else np.asarray(ref_sq_norms, dtype=np.float32))[None, :]
     if allowed is not None:
         np.copyto(d2, np.inf, where=~np.asarray(allowed, dtype=bool))
@@ -227,15 +300,7 @@ def _match_l2(
     best = d2[rows, best_j]
     d2[rows, best_j] = np.inf
     second = d2.min(axis=1)
-    qn = sq_norms(q)
-    best = np.maximum(best + qn, 0.0)
-    second = np.maximum(second + qn, 0.0)
-    with np.errstate(invalid="ignore"):
-        ok = np.where(
-            np.isfinite(second),
-            np.sqrt(best) < ratio * np.sqrt(second),
-            np.sqrt(best) < max_single,
-        ) & np.isfinite(best)
+    ok = _ratio_passes(best, second, sq_norms(q), ratio, max_single)
     return rows[ok].astype(int), best_j[ok].astype(int)
 
 

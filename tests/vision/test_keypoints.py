@@ -144,3 +144,26 @@ def test_l2_matcher_with_fewer_than_100_query_rows_matches_the_brute_force() -> 
         expected = [(p[0].queryIdx, p[0].trainIdx) for p in knn if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
         assert list(zip(qi.tolist(), ri.tolist(), strict=True)) == expected
         assert len(expected) > 30
+
+
+@pytest.mark.parametrize("n_query", [60, 150])
+def test_windowed_matcher_keeps_the_pairs_of_the_masked_brute_force(n_query) -> None:
+    """match_in_window = match with the window mask circular_abs_diff(...) <= reach, also at the window's edge."""
+    from factorloc.vision.keypoints import circular_abs_diff, match_in_window
+
+    rng = np.random.default_rng(9)
+    ref = rng.integers(0, 120, (700, 128)).astype(np.float32)
+    partner = rng.choice(700, n_query, replace=False)
+    query = np.rint(ref[partner] + rng.normal(0, 6, (n_query, 128))).clip(0, 255).astype(np.float32)
+    az_ref = rng.uniform(-math.pi, math.pi, 700)
+    az_query = np.asarray(np.angle(np.exp(1j * (az_ref[partner] - 2.9 + rng.normal(0, 0.3, n_query)))))
+    offset, reach = 2.9, 0.35  # the window straddles ±π
+    az_ref[:40] = az_query[:40] + offset + reach  # reference points exactly at the window's edge
+    az_ref[40:80] = az_query[:40] + offset - reach * (1 + 1e-7)
+    allowed = circular_abs_diff(az_ref, az_query, offset) <= reach
+    assert 0.05 < allowed.mean() < 0.5
+    expected = match(query, ref, cv2.NORM_L2, 0.8, allowed)
+    qi, ri = match_in_window(query, az_query, ref, az_ref, offset, reach, 0.8)
+    assert qi.tolist() == expected[0].tolist() and ri.tolist() == expected[1].tolist()
+    assert len(qi) > n_query // 3
+    assert np.all(allowed[qi, ri])
