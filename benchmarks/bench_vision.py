@@ -30,6 +30,10 @@ default compass (query views detected at half scale) and the full-scale one (``q
 estimates (median, RMSE) and their heading NEES (1 dof: mean ``(err/σ)²``, ≈ 1 when σ is honest)
 with the count beyond 3σ.
 
+With ``--pose DIR ...`` it prints the pose-from-bearings table per scenario (the compass with and without its pose,
+the correlation after each, a plain ORB vote baseline, CPU ms per query); ``--set name=value ...`` adds a variant of
+:class:`CompassConfig` beside them, query by query in the same run. ``--same-spot N``: views at the reference spot.
+
 Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N] [--scenario DIR]``.
 Prints figures; asserts nothing.
 """

@@ -124,7 +124,9 @@ class CompassConfig:
     one_keypoint_per_location
         Keep one keypoint (and descriptor) per detected position, in the reference and in the query views
         (:func:`factorloc.vision.keypoints.one_per_location_index`): SIFT reports a keypoint once per dominant
-        orientation, and copies of one point matched twice would be counted as independent bearings.
+        orientation, and copies of one point matched twice would be counted as independent bearings. Off by
+        default: it loses the matches of points the two images keep with different orientations
+        (``docs/calibration/vision.md``).
     query_sift_sigma
         SIFT's assumed input blur for the query views (OpenCV's ``sigma``; 1.6 in Lowe's paper):
         1.2 keeps ~30 % more keypoints on the downscaled views, at no extra cost.

@@ -13,11 +13,11 @@ import math
 import cv2
 import numpy as np
 
-from factorloc.errors import ConfigError
+from factorloc.errors import ConfigError, InputError
 from factorloc.geometry import wrap_angle
 
 DETECTORS = ("orb", "sift")
-#: The fewest rows of a product OpenCV's gemm hands to its BLAS (``HAL_GEMM_SMALL_MATRIX_THRESH``).
+#: The fewest rows from which OpenCV's gemm runs at its BLAS speed (measured with OpenCV 5.0's wheel; see ``_product``).
 _GEMM_MIN_ROWS = 100
 #: A query point with a single (L2) candidate is matched to it only below this distance (no ratio test possible).
 _MAX_SINGLE_L2 = 250.0
@@ -224,6 +224,11 @@ def match_in_window(
     """
     if query_desc is None or ref_desc is None or len(query_desc) == 0 or len(ref_desc) == 0:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    if np.shape(query_az_rad) != (len(query_desc),) or np.shape(ref_az_rad) != (len(ref_desc),):
+        raise InputError(
+            f"match_in_window needs one azimuth per descriptor: query_az_rad {np.shape(query_az_rad)} for "
+            f"{len(query_desc)} query descriptors, ref_az_rad {np.shape(ref_az_rad)} for {len(ref_desc)}"
+        )
     from factorloc.vision._kernels import two_nearest_in_window
 
     q = np.ascontiguousarray(query_desc, dtype=np.float32)
@@ -244,9 +249,10 @@ def _product(q: np.ndarray, r: np.ndarray) -> np.ndarray:
     """``−2 q·rᵀ`` (Nq×Nr float32) by OpenCV's gemm.
 
     OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
-    loaded 2-core machine that made the matching — and the next steps — 2.5–3× slower in wall time. OpenCV hands a
-    product to its BLAS (the LAPACK HAL) only from 100 rows; below, its own loop is ~10× slower (99 × 3613 × 128:
-    11 ms, 100 × 3613 × 128: 0.95 ms): fewer rows are padded with zeros, their products dropped (the same values).
+    loaded 2-core machine that made the matching — and the next steps — 2.5–3× slower in wall time. OpenCV's gemm
+    is ~10× slower per row below 100 rows (OpenCV 5.0's wheel, which bundles OpenBLAS: 99 × 3613 × 128 took 11 ms
+    of CPU, 100 × 3613 × 128 0.95 ms): fewer rows are padded with zeros and their products dropped. The descriptors
+    are integer-valued (OpenCV's SIFT), so every product is exact in float32 whichever path computes it.
     """
     if 0 < len(q) < _GEMM_MIN_ROWS:
         padded = np.vstack([q, np.zeros((_GEMM_MIN_ROWS - len(q), q.shape[1]), dtype=np.float32)])

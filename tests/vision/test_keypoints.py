@@ -167,3 +167,12 @@ def test_windowed_matcher_keeps_the_pairs_of_the_masked_brute_force(n_query) -> 
     assert qi.tolist() == expected[0].tolist() and ri.tolist() == expected[1].tolist()
     assert len(qi) > n_query // 3
     assert np.all(allowed[qi, ri])
+
+
+def test_windowed_matcher_refuses_azimuths_that_do_not_fit_the_descriptors() -> None:
+    from factorloc.errors import InputError
+    from factorloc.vision.keypoints import match_in_window
+
+    d = np.zeros((5, 128), np.float32)
+    with pytest.raises(InputError, match="ref_az_rad"):
+        match_in_window(d, np.zeros(5), d, np.zeros(4), 0.0, 0.5, 0.8)
