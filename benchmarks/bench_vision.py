@@ -30,6 +30,10 @@ default compass (query views detected at half scale) and the full-scale one (``q
 estimates (median, RMSE) and their heading NEES (1 dof: mean ``(err/σ)²``, ≈ 1 when σ is honest)
 with the count beyond 3σ.
 
+With ``--pose DIR ...`` it prints the pose-from-bearings table per scenario (the compass with and without its pose,
+the correlation after each, a plain ORB vote baseline, CPU ms per query); ``--set name=value ...`` adds a variant of
+:class:`CompassConfig` beside them, query by query in the same run. ``--same-spot N``: views at the reference spot.
+
 Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N] [--scenario DIR]``.
 Prints figures; asserts nothing.
 """
@@ -438,8 +442,23 @@ def _print_ratios(tallies: dict, compass_key: str, correlation_key: str, label: 
     )
 
 
-def bench_pose(directories: list[Path], max_queries: int) -> None:
-    """The compass with pose from bearings vs heading-only, the correlation after each, and a plain ORB vote."""
+def _overrides(items: list[str]) -> dict[str, Any]:
+    """``name=value`` settings of :class:`CompassConfig`, each value cast to the type of the field's default."""
+    base = compass.CompassConfig()
+    kw: dict[str, Any] = {}
+    for item in items:
+        key, value = item.split("=", 1)
+        kind = type(getattr(base, key))
+        kw[key] = kind(float(value)) if kind in (bool, int) else kind(value) if kind is str else float(value)
+    return kw
+
+
+def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] | None = None) -> None:
+    """The compass with pose from bearings vs heading-only, the correlation after each, and a plain ORB vote.
+
+    With ``overrides`` (``name=value`` settings of :class:`CompassConfig`) a third variant, the default with them,
+    runs beside the others, query by query in the same run.
+    """
     import cv2
 
     from factorloc.datasets import load_scenario
@@ -450,6 +469,9 @@ def bench_pose(directories: list[Path], max_queries: int) -> None:
         "pose from bearings (default)": compass.CompassConfig(),
         "heading only": compass.CompassConfig(pose_from_bearings=False),
     }
+    if overrides:
+        kw = _overrides(overrides)
+        variants[", ".join(f"{k}={v}" for k, v in kw.items())] = compass.CompassConfig(**kw)
     odo = OdometryStep()
     for directory in directories:
         data = evaluation_set(load_scenario(directory))
@@ -476,7 +498,8 @@ def bench_pose(directories: list[Path], max_queries: int) -> None:
         print(POSE_HEADER)
         for label, t in tallies.items():
             print(t.row(label))
-        _print_ratios(tallies, "pose from bearings (default) / compass", "pose from bearings (default) / correlation")
+        for name in [v for v in variants if v != "heading only"]:
+            _print_ratios(tallies, f"{name} / compass", f"{name} / correlation", name)
         for key, (tc, tr) in ((k, v) for k, v in prepared.items() if k[0] == "prepare CPU s"):
             print(f"preparation of {key[2]!r} ({key[1]}), CPU ms once: compass {1e3 * tc:.0f}, correlation {1e3 * tr:.0f}")
 
@@ -571,11 +594,7 @@ def bench_pose_fit(n: int, overrides: list[str]) -> None:
     from factorloc.sim import DepthCamera, PinholeCamera, apartment, photo, render_camera, render_cloud_360, render_panorama
 
     cv2.setNumThreads(1)
-    base = compass.CompassConfig()
-    kw = {}
-    for item in overrides:
-        key, value = item.split("=", 1)
-        kw[key] = type(getattr(base, key))(float(value))
+    kw = _overrides(overrides)
     cfg = compass.CompassConfig(**kw)
     world = apartment()
     t_ref = Pose2(3.0, 2.2, 0.3)
@@ -634,14 +653,19 @@ def main() -> None:
     parser.add_argument("--pose", type=Path, nargs="+", default=None, help="pose-from-bearings table on these scenarios")
     parser.add_argument("--same-spot", type=int, default=0, help="same-spot views per source (sim + real panoramas)")
     parser.add_argument("--pose-fit", type=int, default=0, help="the pose rules' fitting set: N simulated views")
-    parser.add_argument("--set", nargs="*", default=[], help="CompassConfig overrides name=value for --pose-fit")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        help="CompassConfig overrides name=value: --pose-fit, or a variant beside --pose",
+    )
     args = parser.parse_args()
     if args.pose_fit:
         bench_pose_fit(args.pose_fit, args.set)
         return
     if args.pose or args.same_spot:
         if args.pose:
-            bench_pose(args.pose, args.scenario_queries)
+            bench_pose(args.pose, args.scenario_queries, args.set)
         if args.same_spot:
             bench_same_spot(args.same_spot)
         return

@@ -121,6 +121,12 @@ class CompassConfig:
         The fewest pixels a query view is reduced to before detection (see ``query_scale``).
     query_octave_layers
         SIFT's layers per octave for the query views (OpenCV's ``nOctaveLayers``).
+    one_keypoint_per_location
+        Keep one keypoint (and descriptor) per detected position, in the reference and in the query views
+        (:func:`factorloc.vision.keypoints.one_per_location_index`): SIFT reports a keypoint once per dominant
+        orientation, and copies of one point matched twice would be counted as independent bearings. Off by
+        default: it loses the matches of points the two images keep with different orientations
+        (``docs/calibration/vision.md``).
     query_sift_sigma
         SIFT's assumed input blur for the query views (OpenCV's ``sigma``; 1.6 in Lowe's paper):
         1.2 keeps ~30 % more keypoints on the downscaled views, at no extra cost.
@@ -245,6 +251,7 @@ class CompassConfig:
     reference_scale: float = 1.0
     query_sift_sigma: float = 1.2
     query_octave_layers: int = 3
+    one_keypoint_per_location: bool = False
     query_min_detect_px: int = 12000
     fast_threshold: int = 10
     ratio: float = 0.8
@@ -361,7 +368,13 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     problem = texture_problem(gray)
     det = kp.make_detector(config.detector, config.n_features_reference, config.fast_threshold)
     if problem is None:
-        xy, desc = kp.detect(gray, det, wrap_pad_px=min(64, grid.width_px // 4), scale=config.reference_scale)
+        xy, desc = kp.detect(
+            gray,
+            det,
+            wrap_pad_px=min(64, grid.width_px // 4),
+            scale=config.reference_scale,
+            one_per_location=config.one_keypoint_per_location,
+        )
     else:
         xy, desc = np.zeros((0, 2)), None
     if problem is None and (desc is None or len(xy) < config.min_inliers):
@@ -522,7 +535,13 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     scales = []
     for s in strips:
         scales.append(detection_scale(s.gray.size, config))
-        xy, desc = kp.detect(s.gray, det, wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0, scale=scales[-1])
+        xy, desc = kp.detect(
+            s.gray,
+            det,
+            wrap_pad_px=min(64, s.width_px // 4) if s.full_circle else 0,
+            scale=scales[-1],
+            one_per_location=config.one_keypoint_per_location,
+        )
         if desc is None or len(xy) == 0:
             continue
         az_q_list.append(np.asarray(s.azimuth_of_column(xy[:, 0]), dtype=np.float64))
@@ -554,9 +573,13 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         az_r, desc_r, ref_index = az_r[used], desc_r[used], ref_index[used]
         norms_r = None if norms_r is None else norms_r[used]
         ranges = None if ranges is None else ranges[used]
-        allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
     candidates = int(len(az_r))
-    qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
+    if window is not None and config.detector == "sift":
+        qi, ri = kp.match_in_window(desc_q, az_q, desc_r, az_r, seed[0], reach, config.ratio, ref_sq_norms=norms_r)
+    else:
+        if window is not None:
+            allowed = kp.circular_abs_diff(az_r, az_q, seed[0]) <= reach
+        qi, ri = kp.match(desc_q, desc_r, kp.norm_of(config.detector), config.ratio, allowed, ref_sq_norms=norms_r)
     outside_votes = np.zeros(0)
     if window is not None:
         inside = np.abs(np.asarray(wrap_angle(az_r[ri] - az_q[qi] - seed[0]))) <= window + config.inlier_band_rad

@@ -13,10 +13,14 @@ import math
 import cv2
 import numpy as np
 
-from factorloc.errors import ConfigError
+from factorloc.errors import ConfigError, InputError
 from factorloc.geometry import wrap_angle
 
 DETECTORS = ("orb", "sift")
+#: The fewest rows from which OpenCV's gemm runs at its BLAS speed (measured with OpenCV 5.0's wheel; see ``_product``).
+_GEMM_MIN_ROWS = 100
+#: A query point with a single (L2) candidate is matched to it only below this distance (no ratio test possible).
+_MAX_SINGLE_L2 = 250.0
 #: Where OpenCV's SIFT (``enable_precise_upscale=False``) reports a keypoint, relative to the true position (px).
 _SIFT_UPSCALE_OFFSET_PX = 0.25
 
@@ -52,7 +56,12 @@ def norm_of(kind: str) -> int:
 
 
 def detect(
-    gray: np.ndarray, detector: cv2.Feature2D, *, wrap_pad_px: int = 0, scale: float = 1.0
+    gray: np.ndarray,
+    detector: cv2.Feature2D,
+    *,
+    wrap_pad_px: int = 0,
+    scale: float = 1.0,
+    one_per_location: bool = False,
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Keypoint positions (N×2 float64, x = column, y = row) and descriptors of a grey image.
 
@@ -64,6 +73,10 @@ def detect(
     SIFT doubles its input internally (its first octave), so ``scale = 0.5``
     drops only that octave — the finest, costliest one: about 5× faster on a
     160×320 strip, keypoints at scales ≥ 2 px of the input.
+
+    With ``one_per_location`` a location reported several times keeps one keypoint
+    (:func:`one_per_location_index`): SIFT gives a keypoint one copy per orientation-histogram peak within 80 % of the
+    highest (Lowe 2004, §5), each with its own descriptor, so a pair matched twice would count as two bearings.
     """
     img = np.clip(gray, 0, 255).astype(np.uint8)
     pad = int(wrap_pad_px)
@@ -79,6 +92,9 @@ def detect(
     if desc is None or len(kps) == 0:
         return np.zeros((0, 2)), None
     xy = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)  # the (x, y) of each keypoint, as kp.pt
+    if one_per_location:
+        keep = one_per_location_index(xy, np.array([k.angle for k in kps], dtype=np.float64))
+        xy, desc = xy[keep], desc[keep]
     if isinstance(detector, cv2.SIFT):
         # OpenCV's SIFT doubles its input for the first octave (pixel i of the double at (i + ½)/2 − ½) but reports
         # positions as i/2: ¼ px right of and below the truth, for every octave. Harmless when both images share it,
@@ -92,6 +108,23 @@ def detect(
         keep = (xy[:, 0] >= 0.0) & (xy[:, 0] < gray.shape[1])
         xy, desc = xy[keep], desc[keep]
     return xy, desc
+
+
+def one_per_location_index(xy_px: np.ndarray, angle_deg: np.ndarray) -> np.ndarray:
+    """Indices (ascending) of one keypoint per distinct position: of those at one ``xy_px``, the smallest ``angle_deg``.
+
+    Positions are compared exactly (a detector's copies of one keypoint share its position bit for bit).
+    The smallest angle (OpenCV's in [0, 360)) is an arbitrary but view-independent choice: two views of
+    a patch with the same two orientation peaks keep the same one.
+    """
+    xy = np.asarray(xy_px, dtype=np.float64).reshape(-1, 2)
+    if len(xy) < 2:
+        return np.arange(len(xy))
+    order = np.lexsort((np.asarray(angle_deg, dtype=np.float64), xy[:, 1], xy[:, 0]))
+    s = xy[order]
+    first = np.ones(len(s), dtype=bool)
+    first[1:] = np.any(s[1:] != s[:-1], axis=1)
+    return np.sort(order[first])
 
 
 def match(
@@ -128,7 +161,7 @@ def match(
     """
     if query_desc is None or ref_desc is None or len(query_desc) == 0 or len(ref_desc) == 0:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-    max_single = 0.2 * 8 * query_desc.shape[1] if norm == cv2.NORM_HAMMING else 250.0
+    max_single = 0.2 * 8 * query_desc.shape[1] if norm == cv2.NORM_HAMMING else _MAX_SINGLE_L2
     if norm == cv2.NORM_L2:
         return _match_l2(query_desc, ref_desc, ratio, allowed, max_single, ref_sq_norms)
     matcher = cv2.BFMatcher(norm, crossCheck=False)
@@ -150,6 +183,93 @@ def match(
             qi.append(pair[0].queryIdx)
             ri.append(pair[0].trainIdx)
     return np.asarray(qi, dtype=int), np.asarray(ri, dtype=int)
+
+
+def match_in_window(
+    query_desc: np.ndarray,
+    query_az_rad: np.ndarray,
+    ref_desc: np.ndarray,
+    ref_az_rad: np.ndarray,
+    offset_rad: float,
+    reach_rad: float,
+    ratio: float,
+    *,
+    ref_sq_norms: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`match` of float (L2) descriptors among the pairs of a circular window of azimuths.
+
+    The same pairs as ``match(query_desc, ref_desc, cv2.NORM_L2, ratio, allowed, ref_sq_norms=...)`` with
+    ``allowed = circular_abs_diff(ref_az_rad, query_az_rad, offset_rad) <= reach_rad`` (a reference point is a
+    candidate of a query point when ``|wrap(az_ref − az_query − offset)| ≤ reach``): the mask, the squared norms
+    and the two smallest distances per query point in one compiled pass over the product
+    (:func:`factorloc.vision._kernels.two_nearest_in_window`, the same float32 operations).
+
+    Parameters
+    ----------
+    query_desc, ref_desc
+        Float descriptors (Nq×D, Nr×D).
+    query_az_rad, ref_az_rad
+        Their azimuths (rad), (Nq,) and (Nr,).
+    offset_rad, reach_rad
+        The window's centre offset and half-width (rad).
+    ratio
+        Lowe's ratio (see :func:`match`).
+    ref_sq_norms
+        Optional squared norms of ``ref_desc``'s rows (:func:`sq_norms`).
+
+    Returns
+    -------
+    (query_index, ref_index)
+        Integer arrays of equal length, in ascending query order.
+    """
+    if query_desc is None or ref_desc is None or len(query_desc) == 0 or len(ref_desc) == 0:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
+    if np.shape(query_az_rad) != (len(query_desc),) or np.shape(ref_az_rad) != (len(ref_desc),):
+        raise InputError(
+            f"match_in_window needs one azimuth per descriptor: query_az_rad {np.shape(query_az_rad)} for "
+            f"{len(query_desc)} query descriptors, ref_az_rad {np.shape(ref_az_rad)} for {len(ref_desc)}"
+        )
+    from factorloc.vision._kernels import two_nearest_in_window
+
+    q = np.ascontiguousarray(query_desc, dtype=np.float32)
+    r = np.ascontiguousarray(ref_desc, dtype=np.float32)
+    d2 = _product(q, r)
+    norms = sq_norms(r) if ref_sq_norms is None else np.ascontiguousarray(ref_sq_norms, dtype=np.float32)
+    # the operands of circular_abs_diff, rounded to float32 as it rounds them
+    b = (np.asarray(query_az_rad, dtype=np.float64) + offset_rad).astype(np.float32)
+    a = np.ascontiguousarray(ref_az_rad, dtype=np.float32)
+    best_j, best, second = two_nearest_in_window(
+        np.ascontiguousarray(d2), norms, a, b, np.float32(reach_rad), np.float32(2.0 * math.pi)
+    )
+    ok = _ratio_passes(best, second, sq_norms(q), ratio, _MAX_SINGLE_L2)
+    return np.flatnonzero(ok), best_j[ok].astype(int)
+
+
+def _product(q: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """``−2 q·rᵀ`` (Nq×Nr float32) by OpenCV's gemm.
+
+    OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
+    loaded 2-core machine that made the matching — and the next steps — 2.5–3× slower in wall time. OpenCV's gemm
+    is ~10× slower per row below 100 rows (OpenCV 5.0's wheel, which bundles OpenBLAS: 99 × 3613 × 128 took 11 ms
+    of CPU, 100 × 3613 × 128 0.95 ms): fewer rows are padded with zeros and their products dropped. The descriptors
+    are integer-valued (OpenCV's SIFT), so every product is exact in float32 whichever path computes it.
+    """
+    if 0 < len(q) < _GEMM_MIN_ROWS:
+        padded = np.vstack([q, np.zeros((_GEMM_MIN_ROWS - len(q), q.shape[1]), dtype=np.float32)])
+        return cv2.gemm(padded, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)[: len(q)]
+    return cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
+
+
+def _ratio_passes(best: np.ndarray, second: np.ndarray, q_sq_norms: np.ndarray, ratio: float, max_single: float) -> np.ndarray:
+    """Lowe's ratio test on the two smallest ``‖r‖² − 2 q·r`` of each row (``‖q‖²`` added here); one candidate: ``max_single``."""
+    best = np.maximum(best + q_sq_norms, 0.0)
+    second = np.maximum(second + q_sq_norms, 0.0)
+    with np.errstate(invalid="ignore"):
+        return np.where(
+            np.isfinite(second),
+            np.sqrt(best) < ratio * np.sqrt(second),
+            np.sqrt(best) < max_single,
+        ) & np.isfinite(best)
 
 
 def sq_norms(desc: np.ndarray) -> np.ndarray:
@@ -174,12 +294,10 @@ def _match_l2(
     """
     q = np.ascontiguousarray(query_desc, dtype=np.float32)
     r = np.ascontiguousarray(ref_desc, dtype=np.float32)
-    # OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
-    # loaded 2-core machine that made this step — and the next ones — 2.5–3× slower in wall time
     # ‖q‖² is constant along a row: the ranking is made on ‖r‖² − 2·q·r and ‖q‖² added to the two values kept
     # (OpenCV's SIFT descriptors are integers below 256, so every float32 here is an exact integer: the same
     # values as summing all three terms first, two passes over the Nq×Nr matrix fewer)
-    d2 = cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
+    d2 = _product(q, r)
     d2 += (sq_norms(r) if ref_sq_norms is None else np.asarray(ref_sq_norms, dtype=np.float32))[None, :]
     if allowed is not None:
         np.copyto(d2, np.inf, where=~np.asarray(allowed, dtype=bool))
@@ -188,15 +306,7 @@ def _match_l2(
     best = d2[rows, best_j]
     d2[rows, best_j] = np.inf
     second = d2.min(axis=1)
-    qn = sq_norms(q)
-    best = np.maximum(best + qn, 0.0)
-    second = np.maximum(second + qn, 0.0)
-    with np.errstate(invalid="ignore"):
-        ok = np.where(
-            np.isfinite(second),
-            np.sqrt(best) < ratio * np.sqrt(second),
-            np.sqrt(best) < max_single,
-        ) & np.isfinite(best)
+    ok = _ratio_passes(best, second, sq_norms(q), ratio, max_single)
     return rows[ok].astype(int), best_j[ok].astype(int)
 
 

@@ -102,3 +102,77 @@ def test_sift_keypoints_are_unbiased_at_full_and_reduced_detection_scale(scale) 
     assert desc is not None and len(xy) >= 4
     for x, y in centres:
         assert np.min(np.hypot(xy[:, 0] - x, xy[:, 1] - y)) < 0.06
+
+
+def test_one_per_location_keeps_the_smallest_angle_of_each_position() -> None:
+    from factorloc.vision.keypoints import one_per_location_index
+
+    xy = np.array([[5.0, 2.0], [1.0, 1.0], [5.0, 2.0], [1.0, 1.5], [5.0, 2.0], [1.0, 1.0]])
+    angle = np.array([200.0, 30.0, 10.0, 90.0, 350.0, 5.0])
+    assert one_per_location_index(xy, angle).tolist() == [2, 3, 5]
+    assert one_per_location_index(xy[:1], angle[:1]).tolist() == [0]
+
+
+def test_sift_detection_with_one_keypoint_per_location_drops_only_the_orientation_copies() -> None:
+    """SIFT reports some keypoints once per dominant orientation; ``one_per_location`` keeps every position once."""
+    from factorloc.vision.keypoints import detect, make_detector
+
+    rng = np.random.default_rng(6)
+    image = cv2.GaussianBlur(rng.uniform(0, 255, (160, 320)).astype(np.float32), (0, 0), 2.0)
+    image = cv2.normalize(image, None, 0, 255, cv2.NORM_MINMAX)
+    xy_all, desc_all = detect(image, make_detector("sift", 2000))
+    xy_one, desc_one = detect(image, make_detector("sift", 2000), one_per_location=True)
+    positions = {tuple(p) for p in xy_all.tolist()}
+    assert len(positions) < len(xy_all) - 10  # the image has orientation copies to drop
+    assert len(xy_one) == len(positions) == len({tuple(p) for p in xy_one.tolist()})
+    assert desc_one.shape == (len(xy_one), 128)
+    # each kept descriptor is one of its position's copies
+    for p, d in zip(xy_one[:50], desc_one[:50], strict=True):
+        same = np.flatnonzero(np.all(xy_all == p, axis=1))
+        assert any(np.array_equal(d, desc_all[k]) for k in same)
+
+
+def test_l2_matcher_with_fewer_than_100_query_rows_matches_the_brute_force() -> None:
+    """Below 100 query rows the product is padded (OpenCV's fast path): the same pairs as OpenCV's knnMatch."""
+    rng = np.random.default_rng(8)
+    ref = rng.integers(0, 120, (900, 128)).astype(np.float32)  # integer-valued, like OpenCV's SIFT descriptors
+    query = np.rint(ref[rng.choice(900, 60, replace=False)] + rng.normal(0, 6, (60, 128))).clip(0, 255).astype(np.float32)
+    allowed = rng.random((60, 900)) < 0.7
+    for mask in (None, allowed):
+        qi, ri = match(query, ref, cv2.NORM_L2, 0.8, mask)
+        knn = cv2.BFMatcher(cv2.NORM_L2).knnMatch(query, ref, k=2, mask=None if mask is None else mask.astype(np.uint8))
+        expected = [(p[0].queryIdx, p[0].trainIdx) for p in knn if len(p) == 2 and p[0].distance < 0.8 * p[1].distance]
+        assert list(zip(qi.tolist(), ri.tolist(), strict=True)) == expected
+        assert len(expected) > 30
+
+
+@pytest.mark.parametrize("n_query", [60, 150])
+def test_windowed_matcher_keeps_the_pairs_of_the_masked_brute_force(n_query) -> None:
+    """match_in_window = match with the window mask circular_abs_diff(...) <= reach, also at the window's edge."""
+    from factorloc.vision.keypoints import circular_abs_diff, match_in_window
+
+    rng = np.random.default_rng(9)
+    ref = rng.integers(0, 120, (700, 128)).astype(np.float32)
+    partner = rng.choice(700, n_query, replace=False)
+    query = np.rint(ref[partner] + rng.normal(0, 6, (n_query, 128))).clip(0, 255).astype(np.float32)
+    az_ref = rng.uniform(-math.pi, math.pi, 700)
+    az_query = np.asarray(np.angle(np.exp(1j * (az_ref[partner] - 2.9 + rng.normal(0, 0.3, n_query)))))
+    offset, reach = 2.9, 0.35  # the window straddles ±π
+    az_ref[:40] = az_query[:40] + offset + reach  # reference points exactly at the window's edge
+    az_ref[40:80] = az_query[:40] + offset - reach * (1 + 1e-7)
+    allowed = circular_abs_diff(az_ref, az_query, offset) <= reach
+    assert 0.05 < allowed.mean() < 0.5
+    expected = match(query, ref, cv2.NORM_L2, 0.8, allowed)
+    qi, ri = match_in_window(query, az_query, ref, az_ref, offset, reach, 0.8)
+    assert qi.tolist() == expected[0].tolist() and ri.tolist() == expected[1].tolist()
+    assert len(qi) > n_query // 3
+    assert np.all(allowed[qi, ri])
+
+
+def test_windowed_matcher_refuses_azimuths_that_do_not_fit_the_descriptors() -> None:
+    from factorloc.errors import InputError
+    from factorloc.vision.keypoints import match_in_window
+
+    d = np.zeros((5, 128), np.float32)
+    with pytest.raises(InputError, match="ref_az_rad"):
+        match_in_window(d, np.zeros(5), d, np.zeros(4), 0.0, 0.5, 0.8)
