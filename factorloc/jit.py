@@ -104,7 +104,8 @@ def warm_up() -> float:
     """Compile (or load) every kernel the pipeline uses, on a small synthetic room; returns the seconds it took.
 
     Runs the ICP step seeded and blind (global search) on a laser scan and on the cut of a
-    3D cloud, which is what the steps call on real data.
+    3D cloud, which is what the steps call on real data, and the compass's windowed descriptor matching
+    (:mod:`factorloc.vision._kernels`).
     """
     import numpy as np
 
@@ -132,6 +133,11 @@ def warm_up() -> float:
     for query in (fl.Query(scan=scan, odometry=odometry), fl.Query(cloud=cloud, odometry=odometry)):
         localizer.localize(query)
         localizer.localize(query, seeded=False)
+    # the compass's seeded descriptor matching (a scan-only localizer never calls it)
+    from factorloc.vision._kernels import two_nearest_in_window
+
+    f32 = np.float32
+    two_nearest_in_window(np.zeros((2, 3), f32), np.ones(3, f32), np.zeros(3, f32), np.zeros(2, f32), f32(0.5), f32(2 * np.pi))
     seconds = time.perf_counter() - t0
     _log.info("factorloc's kernels are ready (%.1f s; cache: %s)", seconds, cache_location())
     return seconds
