@@ -99,7 +99,9 @@ class TrackerConfig:
     recognition
         Place recognition for (re-)localization.
     relocalize_k
-        How many recognized places the hierarchy tries when re-localizing.
+        How many recognized places (best by signature first) the hierarchy tries when re-localizing (the hloc
+        pattern: retrieve a longer list, verify each by the hierarchy). The factors it fuses share the query's
+        error like the tracking step's (``share_query_error``).
     relocalize_min_places
         A re-localization is accepted only when this many recognized places give factors that the consistency gate
         keeps together (one place alone can be a look-alike: measured on seed 1005, a start-up on one wrong place
@@ -118,16 +120,17 @@ class TrackerConfig:
         3×3 covariance of ``initial_pose`` (world frame); None: 5 cm and 2°.
     share_query_error
         The n place factors of one query share the error of the query's own scan (its pose error, its noise): with
-        True (default) each one's covariance is multiplied by n before they enter the graph, so that together they
-        weigh as much as one (covariance intersection with equal weights, Julier and Uhlmann 1997: consistent
-        whatever their correlation). False treats them as independent (over-confident when they are not).
+        True (default) each one's covariance is multiplied by n before they enter the graph (tracking and
+        re-localization alike), so that together they weigh as much as one (covariance intersection with equal
+        weights, Julier and Uhlmann 1997: consistent whatever their correlation). False treats them as independent
+        (over-confident when they are not).
     """
 
     odometry_model: OdometryModel = field(default_factory=_increment_model)
     localization: Config = field(default_factory=Config)
     choice: ChoiceConfig = field(default_factory=ChoiceConfig)
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
-    relocalize_k: int = 5
+    relocalize_k: int = 10
     relocalize_min_places: int = 2
     relocalize_sigma_m: float = 0.5
     relocalize_sigma_rad: float = 0.3
@@ -413,11 +416,15 @@ class Tracker:
         found = self._recognize(query)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
+            n = len(factors) if cfg.share_query_error else 1
+            if n > 1:  # the n factors of one query share its scan's error, as in the tracking step
+                factors = [_inflated(e, n) for e in factors]
             note = f"{why}; places {list(found.places_used)}"
             if prediction is not None:
                 pred, pred_cov, delta, Q = prediction
                 if vouched:
-                    fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance)
+                    # the recognized pose with the covariance of the inflated factors (the fused one × n)
+                    fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance * float(max(n, 1)))
                     agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
                     checks.append(agree)
                     if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
