@@ -15,8 +15,10 @@
   factor consistent with the prediction (all rejected by the gate, or none reliable), or when the position σ
   exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
   (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the place with
-  the heading of the signature's best shift, their factors gated together); success starts a new chain (a new pose
-  with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
+  the heading of the signature's best shift, their factors gated together and, like the tracking step's, sharing
+  the query's error); success — at least :attr:`TrackerConfig.relocalize_min_places` places agreeing — starts a
+  new chain (a new pose with no between factor to the old one), failure leaves the tracker ``LOST`` (dead
+  reckoning, flagged).
   The chain goes on instead only when the prediction is one the tracker vouches for (position σ ≤
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
@@ -99,9 +101,8 @@ class TrackerConfig:
     recognition
         Place recognition for (re-)localization.
     relocalize_k
-        How many recognized places (best by signature first) the hierarchy tries when re-localizing (the hloc
-        pattern: retrieve a longer list, verify each by the hierarchy). The factors it fuses share the query's
-        error like the tracking step's (``share_query_error``).
+        How many recognized places (best by signature first) the hierarchy tries when re-localizing. The factors
+        it fuses share the query's error like the tracking step's (``share_query_error``).
     relocalize_min_places
         A re-localization is accepted only when this many recognized places give factors that the consistency gate
         keeps together (one place alone can be a look-alike: measured on seed 1005, a start-up on one wrong place
@@ -130,7 +131,7 @@ class TrackerConfig:
     localization: Config = field(default_factory=Config)
     choice: ChoiceConfig = field(default_factory=ChoiceConfig)
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
-    relocalize_k: int = 10
+    relocalize_k: int = 5
     relocalize_min_places: int = 2
     relocalize_sigma_m: float = 0.5
     relocalize_sigma_rad: float = 0.3
