@@ -15,8 +15,10 @@
   factor consistent with the prediction (all rejected by the gate, or none reliable), or when the position σ
   exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
   (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the place with
-  the heading of the signature's best shift, their factors gated together); success starts a new chain (a new pose
-  with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
+  the heading of the signature's best shift, their factors gated together and, like the tracking step's, sharing
+  the query's error); success — at least :attr:`TrackerConfig.relocalize_min_places` places agreeing — starts a
+  new chain (a new pose with no between factor to the old one), failure leaves the tracker ``LOST`` (dead
+  reckoning, flagged).
   The chain goes on instead only when the prediction is one the tracker vouches for (position σ ≤
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
@@ -99,7 +101,8 @@ class TrackerConfig:
     recognition
         Place recognition for (re-)localization.
     relocalize_k
-        How many recognized places the hierarchy tries when re-localizing.
+        How many recognized places (best by signature first) the hierarchy tries when re-localizing. The factors
+        it fuses share the query's error like the tracking step's (``share_query_error``).
     relocalize_min_places
         A re-localization is accepted only when this many recognized places give factors that the consistency gate
         keeps together (one place alone can be a look-alike: measured on seed 1005, a start-up on one wrong place
@@ -118,9 +121,10 @@ class TrackerConfig:
         3×3 covariance of ``initial_pose`` (world frame); None: 5 cm and 2°.
     share_query_error
         The n place factors of one query share the error of the query's own scan (its pose error, its noise): with
-        True (default) each one's covariance is multiplied by n before they enter the graph, so that together they
-        weigh as much as one (covariance intersection with equal weights, Julier and Uhlmann 1997: consistent
-        whatever their correlation). False treats them as independent (over-confident when they are not).
+        True (default) each one's covariance is multiplied by n before they enter the graph (tracking and
+        re-localization alike), so that together they weigh as much as one (covariance intersection with equal
+        weights, Julier and Uhlmann 1997: consistent whatever their correlation). False treats them as independent
+        (over-confident when they are not).
     """
 
     odometry_model: OdometryModel = field(default_factory=_increment_model)
@@ -414,11 +418,15 @@ class Tracker:
         found = self._recognize(query)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
+            n = len(factors) if cfg.share_query_error else 1
+            if n > 1:  # the n factors of one query share its scan's error, as in the tracking step
+                factors = [_inflated(e, n) for e in factors]
             note = f"{why}; places {list(found.places_used)}"
             if prediction is not None:
                 pred, pred_cov, delta, Q = prediction
                 if vouched:
-                    fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance)
+                    # the recognized pose with the covariance of the inflated factors (the fused one × n)
+                    fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance * float(max(n, 1)))
                     agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
                     checks.append(agree)
                     if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
