@@ -89,9 +89,10 @@ class RecognitionConfig:
         free space and the hit: the column is the sector's range profile, so that the cosine of two columns varies
         smoothly with the range); with False only the cells holding a return (the paper's occupancy).
     rank_by
-        ``"shape_distribution"`` (default): places ranked by the D2 shape distribution, Scan Context only gives the
-        heading of the top k; ``"scan_context"``: ranked by Scan Context (key, then distance); ``"submap_match"``:
-        ranked by the correlative score of the query scan against each place's local submap (the module docstring).
+        ``"submap_match"`` (default): ranked by the correlative score of the query scan against each place's local
+        submap (the module docstring); ``"shape_distribution"``: ranked by the D2 shape distribution, Scan Context
+        only gives the heading of the top k (and a query with a scan and a panorama is ranked by both signatures);
+        ``"scan_context"``: ranked by Scan Context (key, then distance).
     d2_max_range_m
         The D2 shape distribution takes the points within this range of the robot (m); its bins span
         ``[0, 2·d2_max_range_m]``.
@@ -138,7 +139,7 @@ class RecognitionConfig:
     n_key_coefficients: int = 8
     n_candidates: int = 50
     fill_free_space: bool = True
-    rank_by: str = "shape_distribution"
+    rank_by: str = "submap_match"
     d2_max_range_m: float = 15.0
     d2_bins: int = 60
     d2_voxel_m: float = 0.1
@@ -456,9 +457,9 @@ class PlaceRecognizer:
 
     The places' signatures are computed once, here. A query with a scan is matched against the places with a
     scan or cloud (a cloud is cut to its planar projection; ranked by :attr:`RecognitionConfig.rank_by`); a query
-    with a panorama and no scan by the Fourier signature against the places with a panorama; a query with both,
-    against the places with both, by the sum of the D2 and panorama distances each divided by its median over
-    the places.
+    with a panorama and no scan by the Fourier signature against the places with a panorama; a query with both
+    and ``rank_by="shape_distribution"``, against the places with both, by the sum of the D2 and panorama
+    distances each divided by its median over the places.
 
     With ``rank_by="submap_match"`` each place's likelihood field is built here from its local submap:
     ``submaps[place_id]`` (N×2 points in the place's frame, m: e.g. the scans along a log's path around it,

@@ -49,8 +49,9 @@ def test_recall_at_5_on_every_tenth_intel_loop(intel) -> None:
     log, rel = intel
     r = recognition_recall(log, rel.subset(10), name="intel")
     assert r.ranks.size == 121
-    # measured: recall@1 18.2 %, recall@5 52.9 % (docs/places.md); random choice would give about 1.5 %
-    assert r.recall_at(5) >= 0.45
+    # measured with the submap match (the default, 4 m half-path submaps): recall@1 18.2 %, recall@5 54.5 %; the
+    # D2 ranking 18.2 % / 52.9 % (docs/places.md); random choice would give about 1.5 %
+    assert r.recall_at(5) >= 0.50
     assert r.recall_at(1) <= r.recall_at(5)
 
 
