@@ -16,6 +16,14 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 10 --every 20  # after ICP verification of the top 10
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --rank-by submap_match   # scan-to-submap matching
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --submap-folds --every 5 1 1  # leave-one-log-out submap grid
+
+``--every`` takes one value for all logs or one per log (in ``--logs`` order). ``--submap-folds`` fits the submap
+match's two parameters chosen by looking at data — the half-length of the places' local submaps
+(``--half-paths``, m of odometry path) and the match's query range (``--match-ranges``, m) — leave one log out: for
+each log, the grid point with the best mean recall@5 on the two others (ties: the smaller), reported on it; the
+printed "worst held-out" line names the grid point whose worst held-out fold is best (the default's rule).
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--logs", nargs="*", default=list(LOGS))
-    ap.add_argument("--every", type=int, default=1, help="every n-th relation")
+    ap.add_argument("--every", type=int, nargs="*", default=[1], help="every n-th relation (one value, or one per log)")
     ap.add_argument("--max-range", type=float, default=RecognitionConfig().max_range_m)
     ap.add_argument("--rings", type=int, default=RecognitionConfig().n_rings)
     ap.add_argument("--sectors", type=int, default=RecognitionConfig().n_sectors)
@@ -52,15 +60,31 @@ def main() -> None:
     ap.add_argument("--modality", choices=["scan", "panorama", "both"], default="scan", help="what the simulated queries sense")
     ap.add_argument("--queries", type=int, default=200)
     ap.add_argument("--verify", type=int, default=0, help="recall after ICP verification of the top N (hloc pattern)")
+    ap.add_argument(
+        "--rank-by", choices=["shape_distribution", "scan_context", "submap_match"], default=RecognitionConfig().rank_by
+    )
+    ap.add_argument("--half-path", type=float, default=4.0, help="submap half-length (m of path), --rank-by submap_match")
+    ap.add_argument("--match-range", type=float, default=RecognitionConfig().match_max_range_m)
+    ap.add_argument("--submap-folds", action="store_true", help="fit the submap half-length and match range leave-one-log-out")
+    ap.add_argument("--half-paths", type=float, nargs="*", default=[2.0, 4.0, 6.0])
+    ap.add_argument("--match-ranges", type=float, nargs="*", default=[12.0, 20.0])
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
+    if len(args.every) not in (1, len(args.logs)):
+        ap.error(f"--every takes one value or one per log ({len(args.logs)})")
+    args.every_of = dict(zip(args.logs, args.every * len(args.logs) if len(args.every) == 1 else args.every, strict=False))
     cfg = RecognitionConfig(
         n_rings=args.rings,
         n_sectors=args.sectors,
         max_range_m=args.max_range,
         n_candidates=args.candidates,
         d2_max_range_m=args.d2_range,
+        rank_by=args.rank_by,
+        match_max_range_m=args.match_range,
     )
+    if args.submap_folds:
+        submap_folds(args, cfg)
+        return
     if args.folds:
         folds(args, cfg)
         return
@@ -71,18 +95,23 @@ def main() -> None:
         verified(args, cfg)
         return
     rows = []
-    print(f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6}")
+    print(
+        f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6} "
+        f"{'cpu ms/q':>8}"
+    )
     for name in args.logs:
         t0 = time.perf_counter()
         log = read_laser_log(args.data / f"{name}.sort.bag")
-        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
-        res = recognition_recall(log, rel, cfg, name=name)
-        row = res.to_dict() | {"seconds": time.perf_counter() - t0}
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
+        c0 = time.process_time()
+        res = recognition_recall(log, rel, cfg, name=name, submap_half_path_m=args.half_path)
+        cpu = time.process_time() - c0
+        row = res.to_dict() | {"seconds": time.perf_counter() - t0, "cpu_s_per_query": cpu / max(res.ranks.size, 1)}
         rows.append(row)
         print(
             f"{name:<10} {row['places']:>6} {row['loop_relations']:>6} {100 * row['recall_at_1']:>5.1f}% "
             f"{100 * row['recall_at_5']:>5.1f}% {row['facing_relations']:>6} {100 * row['recall_at_1_facing']:>5.1f}% "
-            f"{100 * row['recall_at_5_facing']:>5.1f}% {row['seconds']:>6.1f}"
+            f"{100 * row['recall_at_5_facing']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
         )
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
@@ -96,7 +125,7 @@ def verified(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
     for name in args.logs:
         t0 = time.perf_counter()
         log = read_laser_log(args.data / f"{name}.sort.bag")
-        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
         r = verified_recall(log, rel, cfg, n_candidates=args.verify, name=name)
         print(
             f"{name:<10} {r.ranks.size:>6} {100 * r.recall_at(1):>11.1f}% {100 * r.recall_at(min(5, r.max_k)):>11.1f}% "
@@ -126,7 +155,7 @@ def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
     table: dict[str, dict[float, dict]] = {}
     for name in args.logs:
         log = read_laser_log(args.data / f"{name}.sort.bag")
-        rel = read_relations(args.data / f"{name}.relations").subset(args.every)
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
         table[name] = {}
         for r in args.grid:
             table[name][r] = recognition_recall(log, rel, replace(base, d2_max_range_m=r), name=name).to_dict()
@@ -146,6 +175,44 @@ def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
     if args.json:
         args.json.write_text(
             json.dumps({"folds": out, "grid": {n: {str(r): v for r, v in t.items()} for n, t in table.items()}}, indent=2)
+        )
+
+
+def submap_folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
+    """Leave one log out over the submap half-length × match range grid (``--rank-by submap_match``)."""
+    base = replace(base, rank_by="submap_match")
+    grid = [(h, r) for h in args.half_paths for r in args.match_ranges]
+    table: dict[str, dict[tuple[float, float], dict]] = {}
+    for name in args.logs:
+        log = read_laser_log(args.data / f"{name}.sort.bag")
+        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
+        table[name] = {}
+        for h, r in grid:
+            c0 = time.process_time()
+            res = recognition_recall(log, rel, replace(base, match_max_range_m=r), name=name, submap_half_path_m=h)
+            row = res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
+            table[name][(h, r)] = row
+            print(
+                f"  {name:<10} half-path {h:>4.1f} m, match range {r:>4.1f} m: loops {row['loop_relations']:>4} "
+                f"R@1 {100 * row['recall_at_1']:5.1f}%  R@5 {100 * row['recall_at_5']:5.1f}%  "
+                f"cpu {1000 * row['cpu_s_per_query']:.0f} ms/query",
+                flush=True,
+            )
+    print(f"{'held out':<10} {'half-path':>9} {'range':>6} {'R@1':>6} {'R@5':>6}")
+    out = []
+    for held in args.logs:
+        train = [n for n in args.logs if n != held]
+        best = max(grid, key=lambda g: (sum(table[n][g]["recall_at_5"] for n in train), -g[0], -g[1]))
+        row = table[held][best]
+        out.append({"held_out": held, "half_path_m": best[0], "match_max_range_m": best[1], **row})
+        print(f"{held:<10} {best[0]:>9.1f} {best[1]:>6.1f} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
+    worst = max(grid, key=lambda g: (min(table[n][g]["recall_at_5"] for n in args.logs), -g[0], -g[1]))
+    print(f"best on the worst log: half-path {worst[0]:g} m, match range {worst[1]:g} m")
+    if args.json:
+        args.json.write_text(
+            json.dumps(
+                {"folds": out, "grid": {n: {f"{h},{r}": v for (h, r), v in t.items()} for n, t in table.items()}}, indent=2
+            )
         )
 
 

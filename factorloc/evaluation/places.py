@@ -11,6 +11,12 @@ correct place among the top k.
 
 A relation none of whose correct places is in the map (a run around ``t1`` shorter than the spacing, or all
 within the excluded window) still counts, as a miss: the map is built the same way for every log.
+
+With ``RecognitionConfig(rank_by="submap_match")`` each place holds a local submap: the scans whose odometry path
+length lies within ``submap_half_path_m`` of the place's, stitched by odometry into its frame
+(:func:`path_submaps`). A place whose submap holds a scan taken within ``exclude_window_s / 2`` of ``t2`` is left
+out too, so that no scan of the query's own recent past can be retrieved through a neighbour's submap. The query
+is the scan at ``t2`` alone.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from factorloc.errors import InputError
 from factorloc.evaluation.relations import Relations
 from factorloc.geometry import Pose2
 from factorloc.places import Place, PlaceMap, PlaceRecognizer, RecognitionConfig
+from factorloc.places.recognition import local_submap
 from factorloc.types import Odometry, Query, Reference
 
 __all__ = [
@@ -36,6 +43,7 @@ __all__ = [
     "choice_recall",
     "mcl_track",
     "correct_window_s",
+    "path_submaps",
     "places_along_log",
     "recognition_recall",
     "simulated_place_map",
@@ -70,6 +78,49 @@ def places_along_log(log: LaserLog, spacing_m: float = 1.0) -> tuple[PlaceMap, n
             Place(f"p{n:0{width}d}", Reference(scan=log.scans.scans[j], T_world_reference=T, name=f"t={stamps[j]:.3f}"), T)
         )
     return PlaceMap(places), stamps[chosen]
+
+
+def path_submaps(
+    log: LaserLog,
+    place_map: PlaceMap,
+    place_t_s: np.ndarray,
+    half_path_m: float,
+    *,
+    scan_spacing_m: float = 0.25,
+    voxel_m: float = 0.1,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Local submaps along a log: per place, the scans whose odometry path length lies within ``half_path_m`` of
+    the place's (one every ``scan_spacing_m`` of path, the place's own first), stitched by the odometry into the
+    place's frame (:func:`~factorloc.places.recognition.local_submap`). Returns the submaps (place id → N×2
+    points, m) and the (N, 2) time span (s) of the scans each holds.
+
+    The odometry is trusted over a few metres only: neighbours are taken along the path, never by position (a
+    later pass through the same spot has drifted).
+    """
+    if not (isinstance(half_path_m, (int, float)) and half_path_m >= 0):
+        raise InputError(f"half_path_m must be >= 0, got {half_path_m!r}")
+    stamps = log.scans.stamps_s
+    inside = np.flatnonzero((stamps >= log.odometry.stamps_s[0]) & (stamps <= log.odometry.stamps_s[-1]))
+    s_all = np.asarray(log.odometry.path_length_m(stamps[inside]))
+    out: dict[str, np.ndarray] = {}
+    spans = np.zeros((len(place_map), 2))
+    for n, (place, t) in enumerate(zip(place_map, place_t_s, strict=True)):
+        c = log.scans.index_at(float(t), 2e-3)
+        s_c = float(log.odometry.path_length_m(float(t)))
+        lo, hi = np.searchsorted(s_all, s_c - half_path_m, "left"), np.searchsorted(s_all, s_c + half_path_m, "right")
+        chosen, last = [c], -math.inf
+        for j, s_j in zip(inside[lo:hi], s_all[lo:hi], strict=True):
+            if j != c and len(log.scans.scans[j]) and abs(float(s_j) - last) >= scan_spacing_m:
+                chosen.append(int(j))
+                last = float(s_j)
+        T_c = log.odometry.pose_at(float(stamps[c]))
+        out[place.id] = local_submap(
+            [log.scans.scans[j].points_m for j in chosen],
+            [T_c.between(log.odometry.pose_at(float(stamps[j]))) for j in chosen],
+            voxel_m,
+        )
+        spans[n] = stamps[min(chosen)], stamps[max(chosen)]
+    return out, spans
 
 
 def correct_window_s(log: LaserLog, t1_s: float, neighbourhood_m: float = 1.0, tolerance_s: float = 2e-3) -> tuple[float, float]:
@@ -143,14 +194,28 @@ def recognition_recall(
     max_k: int = 5,
     tolerance_s: float = 2e-3,
     indices: Sequence[int] | None = None,
+    submap_half_path_m: float = 4.0,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 
     ``indices`` restricts to those relations (a subset for tests); only loop relations are scored.
+    ``submap_half_path_m``: the half-length (m of odometry path) of the places' local submaps when the config ranks
+    by ``"submap_match"`` (:func:`path_submaps`); unused otherwise.
     """
     place_map, place_t = places_along_log(log, spacing_m)
-    recognizer = PlaceRecognizer(place_map, config)
+    spans = np.column_stack([place_t, place_t])
+    submaps = None
+    if config.rank_by == "submap_match":
+        submaps, spans = path_submaps(log, place_map, place_t, submap_half_path_m, voxel_m=config.submap_voxel_m)
+    recognizer = PlaceRecognizer(place_map, config, submaps=submaps)
     time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
+    span_of = dict(zip(place_map.ids, spans.tolist(), strict=True))
+    half = exclude_window_s / 2
+
+    def excluded(pid: str, t2: float) -> bool:
+        a, b = span_of[pid]
+        return abs(time_of[pid] - t2) <= half or (a <= t2 + half and b >= t2 - half)
+
     ranks, dth = [], []
     for i in range(len(relations)) if indices is None else indices:
         t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
@@ -158,7 +223,7 @@ def recognition_recall(
             continue
         lo, hi = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
         query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
-        cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: abs(time_of[pid] - t2) <= exclude_window_s / 2)
+        cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: excluded(pid, t2))
         rank = math.inf
         for r, c in enumerate(cands, start=1):
             if lo <= time_of[c.place_id] <= hi:

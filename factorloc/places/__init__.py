@@ -5,7 +5,8 @@ Above :mod:`factorloc.pipeline` in the layering (types → estimators → gating
 - :mod:`~factorloc.places.placemap`: :class:`Place`, :class:`PlaceMap` (built from a scenario or one by one,
   saved as a scenario without queries);
 - :mod:`~factorloc.places.choose`: the places whose view can overlap a query, given a reliable pose hypothesis;
-- :mod:`~factorloc.places.recognition`: place recognition without one (D2, Scan Context, panorama Fourier signature);
+- :mod:`~factorloc.places.recognition`: place recognition without one (D2, Scan Context, scan-to-submap matching,
+  panorama Fourier signature);
 - :mod:`~factorloc.places.multi`: the hierarchy against several places, fused on one pose (:class:`PlaceLocalization`).
 """
 
@@ -16,11 +17,14 @@ from factorloc.places.recognition import (
     PlaceCandidate,
     PlaceRecognizer,
     RecognitionConfig,
+    local_submap,
+    neighbour_submaps,
     panorama_signature,
     scan_context,
     scan_context_distance,
     scan_context_key,
     shape_distribution,
+    submap_match,
 )
 from factorloc.places.tracker import Tracker, TrackerConfig, TrackResult, TrackState, seed_of_prediction
 
@@ -39,6 +43,8 @@ __all__ = [
     "TrackState",
     "Tracker",
     "TrackerConfig",
+    "local_submap",
+    "neighbour_submaps",
     "panorama_signature",
     "place_factor",
     "places_in_view",
@@ -48,4 +54,5 @@ __all__ = [
     "seed_of_prediction",
     "shape_distribution",
     "split_step_name",
+    "submap_match",
 ]

@@ -12,6 +12,15 @@ searches the rotation:
   occupied in both, minimized over the column shifts. Unlike the 360° lidar of the paper a 2D laser often sees
   180° only: the empty columns of either scan are left out of the mean (the paper's rule too), so a half-view
   matches the same half of a full one.
+* **Scan-to-submap correlative matching** (``rank_by="submap_match"``), the global localization of Cartographer
+  (W. Hess, D. Kohler, H. Rapp and D. Andor, "Real-time loop closure in 2D LIDAR SLAM", ICRA 2016: a scan is
+  matched against every submap over a window of translations and the full circle of headings; the correlative
+  score of E. Olson, "Real-time correlative scan matching", ICRA 2009): each place holds a *local submap* — the
+  scans taken within a few metres of it stitched into its frame (:func:`local_submap`), so that a place is seen
+  from all sides even by a 180° laser — turned into a likelihood field; the query scan's score against a place is
+  the best mean field value under its points over a lattice of headings (the full circle) and translations
+  (± ``match_radius_m``). A query seen facing the other way than the place's own scan still finds the half of the
+  place it sees. The best pose gives the query's heading (and offset) relative to the place.
 * **Panorama Fourier signature**, for a 360° panorama: the image reduced to a low-resolution grey strip about the
   horizon (``strip_rows`` × ``strip_columns``); per row the magnitudes of the azimuthal DFT (coefficients 1 to
   ``n_coefficients``), normalized. A rotation is a column shift, which changes only the DFT's phases
@@ -31,25 +40,31 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factorloc._validate import positive_float, positive_int
+from factorloc._validate import nonnegative_float, positive_float, positive_int
 from factorloc.errors import InputError
+from factorloc.geometry import Pose2
 from factorloc.places.placemap import Place, PlaceMap
+from factorloc.registration.global_search import LikelihoodField, build_field, score_lattice
+from factorloc.registration.scan2d import voxel_downsample_2d
 from factorloc.types import Panorama, Query
 
 __all__ = [
     "PlaceCandidate",
     "PlaceRecognizer",
     "RecognitionConfig",
+    "local_submap",
+    "neighbour_submaps",
     "panorama_signature",
     "scan_context",
     "scan_context_distance",
     "scan_context_key",
     "shape_distribution",
+    "submap_match",
 ]
 
 
 #: The scan signatures places can be ranked by (:attr:`RecognitionConfig.rank_by`).
-RANKINGS = ("shape_distribution", "scan_context")
+RANKINGS = ("shape_distribution", "scan_context", "submap_match")
 
 
 @dataclass(frozen=True)
@@ -74,8 +89,10 @@ class RecognitionConfig:
         free space and the hit: the column is the sector's range profile, so that the cosine of two columns varies
         smoothly with the range); with False only the cells holding a return (the paper's occupancy).
     rank_by
-        ``"shape_distribution"`` (default): places ranked by the D2 shape distribution, Scan Context only gives the
-        heading of the top k; ``"scan_context"``: ranked by Scan Context (key, then distance).
+        ``"submap_match"`` (default): ranked by the correlative score of the query scan against each place's local
+        submap (the module docstring); ``"shape_distribution"``: ranked by the D2 shape distribution, Scan Context
+        only gives the heading of the top k (and a query with a scan and a panorama is ranked by both signatures);
+        ``"scan_context"``: ranked by Scan Context (key, then distance).
     d2_max_range_m
         The D2 shape distribution takes the points within this range of the robot (m); its bins span
         ``[0, 2·d2_max_range_m]``.
@@ -83,6 +100,31 @@ class RecognitionConfig:
         Number of bins of the D2 histogram.
     d2_voxel_m
         The D2 points are thinned to one per grid cell of this size (m).
+    submap_radius_m
+        With ``rank_by="submap_match"`` and no submaps given to :class:`PlaceRecognizer`: a place's local submap is
+        the scans of the places within this distance of it (m, the map's world poses), stitched into its frame
+        (:func:`neighbour_submaps`); 0 keeps each place's own scan.
+    submap_voxel_m
+        Local submaps are thinned to one point per grid cell of this size (m).
+    match_shortlist
+        With ``rank_by="submap_match"``: how many places the D2 shape distribution shortlists for matching; 0
+        (default) matches every place (Cartographer's rule: every submap is searched).
+    match_resolution_m
+        Cell of the likelihood fields and step of the translation lattice of the match (m).
+    match_sigma_m
+        Blur σ of the likelihood field ``exp(−d²/2σ²)`` (m).
+    match_angle_step_rad
+        Heading step of the match over the full circle (rad).
+    match_radius_m
+        Half-width of the square translation window of the match about the place (m): a query this far from a
+        place's own pose can still score fully against it.
+    match_offset_sigma_m
+        The match's score at translation ``t`` from the place is weighted by ``exp(−|t|²/2σ²)`` with this σ (m),
+        so that of the places that all see the query's surroundings the nearest ranks first (Cartographer's
+        translation cost on its correlative matcher's candidates); 0 (default) weights none.
+    match_max_range_m
+        Query points farther than this from the robot are left out of the match (m); submap points farther than
+        ``match_max_range_m + match_radius_m`` from the place are left out of its field.
     strip_rows, strip_columns
         Size of the panorama strip the Fourier signature is taken from (px).
     strip_fov_rad
@@ -97,10 +139,19 @@ class RecognitionConfig:
     n_key_coefficients: int = 8
     n_candidates: int = 50
     fill_free_space: bool = True
-    rank_by: str = "shape_distribution"
+    rank_by: str = "submap_match"
     d2_max_range_m: float = 15.0
     d2_bins: int = 60
     d2_voxel_m: float = 0.1
+    submap_radius_m: float = 0.0
+    submap_voxel_m: float = 0.1
+    match_shortlist: int = 0
+    match_resolution_m: float = 0.3
+    match_sigma_m: float = 0.3
+    match_angle_step_rad: float = math.radians(6.0)
+    match_radius_m: float = 1.5
+    match_offset_sigma_m: float = 0.0
+    match_max_range_m: float = 12.0
     strip_rows: int = 8
     strip_columns: int = 64
     strip_fov_rad: float = math.radians(30.0)
@@ -121,6 +172,18 @@ class RecognitionConfig:
         object.__setattr__(self, "d2_max_range_m", positive_float("RecognitionConfig.d2_max_range_m", self.d2_max_range_m))
         object.__setattr__(self, "d2_voxel_m", positive_float("RecognitionConfig.d2_voxel_m", self.d2_voxel_m))
         object.__setattr__(self, "d2_bins", positive_int("RecognitionConfig.d2_bins", self.d2_bins))
+        for name in (
+            "submap_voxel_m",
+            "match_resolution_m",
+            "match_sigma_m",
+            "match_angle_step_rad",
+            "match_radius_m",
+            "match_max_range_m",
+        ):
+            object.__setattr__(self, name, positive_float(f"RecognitionConfig.{name}", getattr(self, name)))
+        for name in ("submap_radius_m", "match_offset_sigma_m"):
+            object.__setattr__(self, name, nonnegative_float(f"RecognitionConfig.{name}", getattr(self, name)))
+        object.__setattr__(self, "match_shortlist", positive_int("RecognitionConfig.match_shortlist", self.match_shortlist, 0))
         if self.rank_by not in RANKINGS:
             raise InputError(f"RecognitionConfig.rank_by must be one of {RANKINGS}, got {self.rank_by!r}")
         object.__setattr__(self, "strip_fov_rad", positive_float("RecognitionConfig.strip_fov_rad", self.strip_fov_rad))
@@ -238,6 +301,93 @@ def shape_distribution(points_m: np.ndarray, config: RecognitionConfig = Recogni
 
 
 # --------------------------------------------------------------------------
+# Local submaps and the correlative match (Hess et al. 2016; Olson 2009)
+# --------------------------------------------------------------------------
+def local_submap(scans_m: Sequence[np.ndarray], T_center_scan: Sequence[Pose2], voxel_m: float = 0.1) -> np.ndarray:
+    """Scans stitched into one frame: (M, 2) points (m) of ``scans_m[i]`` (N_i×2, each in its robot frame) mapped
+    by ``T_center_scan[i]`` (the pose of scan i's robot in the submap's frame, e.g. from odometry), thinned to one
+    point per ``voxel_m`` grid cell (the first in the given order)."""
+    if len(scans_m) != len(T_center_scan):
+        raise InputError(f"local_submap: {len(scans_m)} scans for {len(T_center_scan)} poses")
+    if len(scans_m) == 0:
+        raise InputError("local_submap needs at least one scan")
+    voxel_m = positive_float("voxel_m", voxel_m)
+    parts = []
+    for pts, T in zip(scans_m, T_center_scan, strict=True):
+        if not isinstance(T, Pose2):
+            raise InputError(f"local_submap poses must be Pose2, got {type(T).__name__}")
+        p = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+        c, s = math.cos(T.theta), math.sin(T.theta)
+        parts.append(np.column_stack([c * p[:, 0] - s * p[:, 1] + T.x, s * p[:, 0] + c * p[:, 1] + T.y]))
+    pts = np.concatenate(parts)
+    if len(pts) == 0:
+        return pts
+    _, first = np.unique(np.floor(pts / voxel_m).astype(np.int64), axis=0, return_index=True)
+    return pts[np.sort(first)]
+
+
+def neighbour_submaps(place_map: PlaceMap, radius_m: float, voxel_m: float = 0.1) -> dict[str, np.ndarray]:
+    """Per place, the :func:`local_submap` of the scans of every place within ``radius_m`` of it (itself
+    included), stitched by the map's world poses into the place's frame. For maps whose poses are consistent (a
+    mapped or simulated building); a log's odometry poses drift between passes: stitch along the path instead
+    (:func:`factorloc.evaluation.places.places_along_log`)."""
+    radius_m = nonnegative_float("radius_m", radius_m)
+    places = [p for p in place_map if _planar_points(p) is not None]
+    pos = np.array([p.position_m for p in places]).reshape(-1, 2)
+    out: dict[str, np.ndarray] = {}
+    for p in places:
+        near = np.flatnonzero(np.hypot(*(pos - p.position_m).T) <= radius_m)
+        near = sorted(near, key=lambda j: places[j].id != p.id)  # its own scan first
+        out[p.id] = local_submap(
+            [_planar_points(places[j]) for j in near],  # type: ignore[misc]
+            [p.T_world_reference.between(places[j].T_world_reference) for j in near],
+            voxel_m,
+        )
+    return out
+
+
+def _match_field(points_m: np.ndarray, config: RecognitionConfig) -> LikelihoodField | None:
+    """The likelihood field of a place's submap for the match (None when no point lies within reach)."""
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= config.match_max_range_m + config.match_radius_m]
+    if len(pts) == 0:
+        return None
+    return build_field(pts, config.match_resolution_m, config.match_sigma_m, 3.0 * config.match_sigma_m)
+
+
+def _match_query(points_m: np.ndarray, config: RecognitionConfig) -> np.ndarray:
+    pts = np.asarray(points_m, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= config.match_max_range_m]
+    return voxel_downsample_2d(pts, config.match_resolution_m)
+
+
+def submap_match(
+    query_m: np.ndarray, field: LikelihoodField, config: RecognitionConfig = RecognitionConfig()
+) -> tuple[float, Pose2]:
+    """The correlative score of a query scan against a place's field and the pose attaining it.
+
+    ``query_m`` (N×2, robot frame, already thinned: see :meth:`PlaceRecognizer.candidates`) is scored at every
+    heading ``k · match_angle_step_rad`` of the full circle and every translation of the ``match_resolution_m``
+    lattice within ± ``match_radius_m`` of the place: the mean field value under the moved points (Olson 2009), in
+    [0, 1], weighted by the translation's cost when ``match_offset_sigma_m`` > 0. Returns the best score and
+    ``T_place_query`` (to within about a lattice cell and a heading step; 0 and the identity for an empty query).
+    """
+    if len(query_m) == 0:
+        return 0.0, Pose2()
+    n_theta = max(1, int(math.ceil(2.0 * math.pi / config.match_angle_step_rad)))
+    thetas = np.arange(n_theta) * (2.0 * math.pi / n_theta)
+    res = config.match_resolution_m
+    n = int(math.ceil(config.match_radius_m / res))
+    t_lo = np.array([-n * res, -n * res])
+    scores = score_lattice(field, query_m, thetas, t_lo, (2 * n + 1, 2 * n + 1))
+    if config.match_offset_sigma_m > 0.0:
+        t = t_lo[0] + np.arange(2 * n + 1) * res
+        scores = scores * np.exp(-0.5 * (t[:, None] ** 2 + t[None, :] ** 2) / config.match_offset_sigma_m**2)[None]
+    a, kx, ky = np.unravel_index(int(np.argmax(scores)), scores.shape)
+    return float(scores[a, kx, ky]), Pose2(float(t_lo[0] + kx * res), float(t_lo[1] + ky * res), float(thetas[a]))
+
+
+# --------------------------------------------------------------------------
 # Panorama Fourier signature
 # --------------------------------------------------------------------------
 def panorama_signature(panorama: Panorama, config: RecognitionConfig = RecognitionConfig()) -> np.ndarray:
@@ -281,13 +431,16 @@ class PlaceCandidate:
     ``distance`` is the signature distance (smaller is more alike; Scan Context distance in [0, 1], or the
     panorama signatures' Euclidean distance when ``signature == "panorama"``). ``theta_place_query_rad`` is the
     query's heading relative to the place from the best column shift (None for the panorama signature, which
-    keeps no phase).
+    keeps no phase). With ``signature == "submap_match"``, ``distance`` is one minus the correlative score (in
+    [0, 1]) and ``T_place_query`` the best pose of the match (the query's pose in the place's frame, to within
+    about one cell and one heading step of the match's lattice); None otherwise.
     """
 
     place_id: str
     distance: float
     signature: str
     theta_place_query_rad: float | None = None
+    T_place_query: Pose2 | None = None
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -295,6 +448,7 @@ class PlaceCandidate:
             "distance": self.distance,
             "signature": self.signature,
             "theta_place_query_rad": self.theta_place_query_rad,
+            "T_place_query": None if self.T_place_query is None else self.T_place_query.as_array().tolist(),
         }
 
 
@@ -303,16 +457,30 @@ class PlaceRecognizer:
 
     The places' signatures are computed once, here. A query with a scan is matched against the places with a
     scan or cloud (a cloud is cut to its planar projection; ranked by :attr:`RecognitionConfig.rank_by`); a query
-    with a panorama and no scan by the Fourier signature against the places with a panorama; a query with both,
-    against the places with both, by the sum of the D2 and panorama distances each divided by its median over
-    the places.
+    with a panorama and no scan by the Fourier signature against the places with a panorama; a query with both
+    and ``rank_by="shape_distribution"``, against the places with both, by the sum of the D2 and panorama
+    distances each divided by its median over the places.
+
+    With ``rank_by="submap_match"`` each place's likelihood field is built here from its local submap:
+    ``submaps[place_id]`` (N×2 points in the place's frame, m: e.g. the scans along a log's path around it,
+    stitched by odometry) when given, else :func:`neighbour_submaps` of the map at
+    :attr:`RecognitionConfig.submap_radius_m` (0: the place's own scan). The query is one scan: what a lost robot
+    has now.
     """
 
-    def __init__(self, place_map: PlaceMap, config: RecognitionConfig = RecognitionConfig()) -> None:
+    def __init__(
+        self,
+        place_map: PlaceMap,
+        config: RecognitionConfig = RecognitionConfig(),
+        *,
+        submaps: dict[str, np.ndarray] | None = None,
+    ) -> None:
         if not isinstance(place_map, PlaceMap):
             raise InputError(f"PlaceRecognizer needs a PlaceMap, got {type(place_map).__name__}")
         if not isinstance(config, RecognitionConfig):
             raise InputError(f"config must be a RecognitionConfig, got {type(config).__name__}")
+        if submaps is not None and not isinstance(submaps, dict):
+            raise InputError(f"submaps must be a dict of place id to N×2 points, got {type(submaps).__name__}")
         self.config = config
         self._scan_ids: list[str] = []
         scs, keys, d2s = [], [], []
@@ -337,6 +505,26 @@ class PlaceRecognizer:
         self._both_pano = [pano_index[self._scan_ids[i]] for i in self._both_scan]
         self._both = bool(self._both_scan)
         self._pano_sigs = np.array(panos).reshape(len(panos), config.strip_rows * config.n_coefficients)
+        self._fields: list[LikelihoodField | None] = []
+        if config.rank_by == "submap_match":
+            self._fields = self._submap_fields(place_map, submaps)
+
+    def _submap_fields(self, place_map: PlaceMap, submaps: dict[str, np.ndarray] | None) -> list[LikelihoodField | None]:
+        cfg = self.config
+        if submaps is None:
+            if cfg.submap_radius_m > 0.0:
+                submaps = neighbour_submaps(place_map, cfg.submap_radius_m, cfg.submap_voxel_m)
+            else:
+                submaps = {pid: _planar_points(place_map[pid]) for pid in self._scan_ids}  # type: ignore[misc]
+        fields = []
+        for pid in self._scan_ids:
+            if pid not in submaps:
+                raise InputError(f"submaps has no entry for place {pid!r}")
+            pts = np.asarray(submaps[pid], dtype=np.float64)
+            if pts.ndim != 2 or pts.shape[1] != 2:
+                raise InputError(f"submaps[{pid!r}] must be N×2 points, got shape {pts.shape}")
+            fields.append(_match_field(pts, cfg))
+        return fields
 
     def candidates(self, query: Query, k: int = 5, *, exclude: Callable[[str], bool] | None = None) -> tuple[PlaceCandidate, ...]:
         """The ``k`` places most alike ``query``, best first (fewer when the map holds fewer).
@@ -388,6 +576,8 @@ class PlaceRecognizer:
             return ()
         sc = scan_context(points_m, cfg)
         w = 2.0 * math.pi / cfg.n_sectors
+        if cfg.rank_by == "submap_match":
+            return self._by_match(points_m, k, allowed)
         if cfg.rank_by == "shape_distribution":
             d2 = np.linalg.norm(self._d2[allowed] - shape_distribution(points_m, cfg)[None], axis=1)
             top = np.argsort(d2, kind="stable")[:k]
@@ -408,6 +598,33 @@ class PlaceRecognizer:
                 float(math.remainder(int(shift[i]) * w, 2.0 * math.pi)),
             )
             for i in range(len(chosen))
+        )
+
+    def _by_match(self, points_m: np.ndarray, k: int, allowed: np.ndarray) -> tuple[PlaceCandidate, ...]:
+        """The allowed places (shortlisted by D2 when ``match_shortlist`` > 0) ranked by their submap match."""
+        cfg = self.config
+        if cfg.match_shortlist and cfg.match_shortlist < allowed.size:
+            d2 = np.linalg.norm(self._d2[allowed] - shape_distribution(points_m, cfg)[None], axis=1)
+            allowed = allowed[np.argsort(d2, kind="stable")[: cfg.match_shortlist]]
+        q = _match_query(points_m, cfg)
+        scores = np.zeros(allowed.size)
+        poses: list[Pose2] = []
+        for j, i in enumerate(allowed):
+            field = self._fields[i]
+            score, T = (0.0, Pose2()) if field is None else submap_match(q, field, cfg)
+            scores[j] = score
+            poses.append(T)
+        order = np.argsort(-scores, kind="stable")
+        top = order[:k]
+        return tuple(
+            PlaceCandidate(
+                self._scan_ids[allowed[j]],
+                float(1.0 - scores[j]),
+                "submap_match",
+                float(math.remainder(poses[j].theta, 2.0 * math.pi)),
+                poses[j],
+            )
+            for j in top
         )
 
     def _by_panorama(self, panorama: Panorama, k: int, exclude: Callable[[str], bool] | None) -> tuple[PlaceCandidate, ...]:

@@ -14,11 +14,11 @@
 * **kidnapping**: after :attr:`TrackerConfig.kidnap_after` consecutive queries with places in view but no place
   factor consistent with the prediction (all rejected by the gate, or none reliable), or when the position σ
   exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
-  (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the place with
-  the heading of the signature's best shift, their factors gated together and, like the tracking step's, sharing
-  the query's error); success — at least :attr:`TrackerConfig.relocalize_min_places` places agreeing — starts a
-  new chain (a new pose with no between factor to the old one), failure leaves the tracker ``LOST`` (dead
-  reckoning, flagged).
+  (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the pose the
+  recognizer gives — the submap match's pose of the query in the place's frame, or the place with the heading of
+  the signature's best shift —, their factors gated together and, like the tracking step's, sharing the query's
+  error); success — at least :attr:`TrackerConfig.relocalize_min_places` places agreeing — starts a new chain (a
+  new pose with no between factor to the old one), failure leaves the tracker ``LOST`` (dead reckoning, flagged).
   The chain goes on instead only when the prediction is one the tracker vouches for (position σ ≤
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
@@ -108,7 +108,7 @@ class TrackerConfig:
         keeps together (one place alone can be a look-alike: measured on seed 1005, a start-up on one wrong place
         5 m off); fewer leaves the tracker ``LOST`` until a later query.
     relocalize_sigma_m, relocalize_sigma_rad
-        σ of the seed the hierarchy gets at a recognized place (the place's position; heading from the signature).
+        σ of the seed the hierarchy gets at a recognized place (the pose recognition gives: see the module docstring).
     gate_probability
         Probability of the χ² gate of a place factor against the prediction.
     kidnap_after
@@ -471,7 +471,10 @@ class Tracker:
         factors: list[Estimate] = []
         for c in cands:
             place = self.place_map[c.place_id]
-            seed_pose = place.T_world_reference.compose(Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0))
+            # the match's pose of the query in the place's frame when recognition gives one (submap match), else
+            # the place's position with the signature's heading
+            T_place_query = c.T_place_query or Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0)
+            seed_pose = place.T_world_reference.compose(T_place_query)
             s = cfg.relocalize_sigma_m
             seeded = replace(query, odometry=Odometry(seed_pose, s, s, cfg.relocalize_sigma_rad))
             run = self.multi.run_place(seeded, c.place_id)

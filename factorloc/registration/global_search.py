@@ -29,7 +29,7 @@ from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.scan2d import voxel_downsample_2d
 
-__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "reference_fields", "search"]
+__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "reference_fields", "score_lattice", "search"]
 
 
 @dataclass(frozen=True)
@@ -190,6 +190,10 @@ def _score_lattice(
     if stride > 1:
         windows = windows[:, :, ::stride, ::stride]
     return windows[bx + px0, by + py0].mean(axis=1)
+
+
+#: The lattice scorer, public for the other users of a likelihood field (place recognition's submap match).
+score_lattice = _score_lattice
 
 
 def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
