@@ -132,20 +132,10 @@ def places_in_view(
 
         def apart(pid: str) -> bool:
             p = by_id[pid]
-            pts = _place_points(p)
+            pts = p.planar_points_m()
             if pts is None:
                 return False
             return view_overlap(pts, p.T_world_reference, T_world_robot, query_points_m, config.sector_rad) < config.min_overlap
 
         found.sort(key=lambda item: apart(item[0]))  # stable: nearest first within each group
     return tuple(found[: config.k])
-
-
-def _place_points(place) -> np.ndarray | None:  # noqa: ANN001 - a Place
-    """A place's planar points (place frame, m): its scan, else its cloud's x, y; None without either."""
-    ref = place.reference
-    if ref.scan is not None and len(ref.scan):
-        return ref.scan.points_m
-    if ref.cloud is not None and len(ref.cloud):
-        return ref.cloud.points_m[:, :2]
-    return None

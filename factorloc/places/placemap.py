@@ -88,6 +88,15 @@ class Place:
         """(2,) world position of the place (m)."""
         return self.T_world_reference.translation
 
+    def planar_points_m(self) -> np.ndarray | None:
+        """The reference's planar points (N×2, place frame, m): its scan, else its cloud's x, y; None without either."""
+        ref = self.reference
+        if ref.scan is not None and len(ref.scan):
+            return ref.scan.points_m
+        if ref.cloud is not None and len(ref.cloud):
+            return ref.cloud.points_m[:, :2]
+        return None
+
     @cached_property
     def footprint_m(self) -> float:
         """:meth:`footprint_radius_m` at its default quantile, computed once."""

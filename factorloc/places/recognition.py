@@ -43,7 +43,7 @@ import numpy as np
 from factorloc._validate import nonnegative_float, positive_float, positive_int
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
-from factorloc.places.placemap import Place, PlaceMap
+from factorloc.places.placemap import PlaceMap
 from factorloc.registration.global_search import LikelihoodField, build_field, score_lattice
 from factorloc.registration.scan2d import voxel_downsample_2d
 from factorloc.types import Panorama, Query
@@ -332,14 +332,14 @@ def neighbour_submaps(place_map: PlaceMap, radius_m: float, voxel_m: float = 0.1
     mapped or simulated building); a log's odometry poses drift between passes: stitch along the path instead
     (:func:`factorloc.evaluation.places.places_along_log`)."""
     radius_m = nonnegative_float("radius_m", radius_m)
-    places = [p for p in place_map if _planar_points(p) is not None]
+    places = [p for p in place_map if p.planar_points_m() is not None]
     pos = np.array([p.position_m for p in places]).reshape(-1, 2)
     out: dict[str, np.ndarray] = {}
     for p in places:
         near = np.flatnonzero(np.hypot(*(pos - p.position_m).T) <= radius_m)
         near = sorted(near, key=lambda j: places[j].id != p.id)  # its own scan first
         out[p.id] = local_submap(
-            [_planar_points(places[j]) for j in near],  # type: ignore[misc]
+            [places[j].planar_points_m() for j in near],  # type: ignore[misc]
             [p.T_world_reference.between(places[j].T_world_reference) for j in near],
             voxel_m,
         )
@@ -487,7 +487,7 @@ class PlaceRecognizer:
         self._pano_ids: list[str] = []
         panos = []
         for p in place_map:
-            pts = _planar_points(p)
+            pts = p.planar_points_m()
             if pts is not None:
                 sc = scan_context(pts, config)
                 self._scan_ids.append(p.id)
@@ -515,7 +515,7 @@ class PlaceRecognizer:
             if cfg.submap_radius_m > 0.0:
                 submaps = neighbour_submaps(place_map, cfg.submap_radius_m, cfg.submap_voxel_m)
             else:
-                submaps = {pid: _planar_points(place_map[pid]) for pid in self._scan_ids}  # type: ignore[misc]
+                submaps = {pid: place_map[pid].planar_points_m() for pid in self._scan_ids}  # type: ignore[misc]
         fields = []
         for pid in self._scan_ids:
             if pid not in submaps:
@@ -635,12 +635,3 @@ class PlaceRecognizer:
         d = np.linalg.norm(self._pano_sigs[allowed] - sig[None], axis=1)
         order = np.argsort(d, kind="stable")[:k]
         return tuple(PlaceCandidate(self._pano_ids[allowed[i]], float(d[i]), "panorama") for i in order)
-
-
-def _planar_points(place: Place) -> np.ndarray | None:
-    ref = place.reference
-    if ref.scan is not None and len(ref.scan):
-        return ref.scan.points_m
-    if ref.cloud is not None and len(ref.cloud):
-        return ref.cloud.points_m[:, :2]
-    return None
