@@ -128,10 +128,9 @@ def places_in_view(
             found.append((p.id, d))
     found.sort(key=lambda item: (item[1], item[0]))
     if query_points_m is not None and len(found) > config.k:
-        by_id = {p.id: p for p in place_map}
 
         def apart(pid: str) -> bool:
-            p = by_id[pid]
+            p = place_map[pid]
             pts = p.planar_points_m()
             if pts is None:
                 return False

@@ -332,8 +332,7 @@ class Tracker:
             why = "kidnapping" if kidnap else "lost"
             # lost: the prediction is one the tracker no longer vouches for, never gated against
             return self._relocalize(query, (pred, pred_cov, delta, Q), checks, t0, why, vouched=not lost)
-        if cfg.share_query_error and len(accepted) > 1:
-            accepted = [_inflated(e, len(accepted)) for e in accepted]
+        accepted, _ = _sharing_query_error(accepted, cfg.share_query_error)
         return self._continue(query, pred, pred_cov, delta, Q, accepted, reports, checks, t0)
 
     def _continue(
@@ -418,9 +417,7 @@ class Tracker:
         found = self._recognize(query)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
-            n = len(factors) if cfg.share_query_error else 1
-            if n > 1:  # the n factors of one query share its scan's error, as in the tracking step
-                factors = [_inflated(e, n) for e in factors]
+            factors, n = _sharing_query_error(factors, cfg.share_query_error)
             note = f"{why}; places {list(found.places_used)}"
             if prediction is not None:
                 pred, pred_cov, delta, Q = prediction
@@ -526,9 +523,13 @@ def _jump_check(pose: Pose2, pred: Pose2, pred_cov: np.ndarray) -> Check:
     )
 
 
-def _inflated(estimate: Estimate, n: int) -> Estimate:
-    """``estimate`` with its covariance multiplied by ``n`` (one of n factors that share an error)."""
-    return replace(estimate, covariance=estimate.covariance * float(n))
+def _sharing_query_error(factors: list[Estimate], share: bool) -> tuple[list[Estimate], int]:
+    """The factors one query gave, each covariance × n when ``share`` and n > 1 (they share the query scan's error:
+    fused, they count it once), and that factor n (1 when unchanged)."""
+    n = len(factors) if share else 1
+    if n <= 1:
+        return factors, 1
+    return [replace(e, covariance=e.covariance * float(n)) for e in factors], n
 
 
 def seed_of_prediction(pose: Pose2, cov: np.ndarray) -> Odometry:

@@ -144,7 +144,7 @@ def build_field(points_m: np.ndarray, resolution_m: float, sigma_m: float, margi
     return LikelihoodField(values, lo, float(resolution_m))
 
 
-def _score_lattice(
+def score_lattice(
     field: LikelihoodField,
     query_m: np.ndarray,
     thetas: np.ndarray,
@@ -190,10 +190,6 @@ def _score_lattice(
     if stride > 1:
         windows = windows[:, :, ::stride, ::stride]
     return windows[bx + px0, by + py0].mean(axis=1)
-
-
-#: The lattice scorer, public for the other users of a likelihood field (place recognition's submap match).
-score_lattice = _score_lattice
 
 
 def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
@@ -252,7 +248,7 @@ def search(
     t_lo = center - n1 * r1
     thetas = _angle_grid(heading_rad, heading_half_width_rad, p.coarse_angle_step_rad)
     scores = np.concatenate(
-        [_score_lattice(coarse, q1, thetas[i : i + 16], t_lo, (2 * n1 + 1, 2 * n1 + 1)) for i in range(0, len(thetas), 16)]
+        [score_lattice(coarse, q1, thetas[i : i + 16], t_lo, (2 * n1 + 1, 2 * n1 + 1)) for i in range(0, len(thetas), 16)]
     )
     # local maxima of the score volume (heading × x × y) within the suppression radius, then a greedy
     # non-maximum suppression among them, best first: sorting only the peaks, not every pose
@@ -291,7 +287,7 @@ def search(
         offs = _angle_grid(0.0, p.coarse_angle_step_rad, 2.0 * p.fine_angle_step_rad)
         th2 = (xyt[:, 2:3] + offs[None, :]).ravel()
         lo = np.repeat(xyt[:, :2] - n2 * r2, len(offs), axis=0)
-        sc = _score_lattice(fine, q2, th2, lo, (2 * n2 + 1, 2 * n2 + 1), stride=2).reshape(m, len(offs), -1)
+        sc = score_lattice(fine, q2, th2, lo, (2 * n2 + 1, 2 * n2 + 1), stride=2).reshape(m, len(offs), -1)
         flat = sc.reshape(m, -1).argmax(axis=1)
         a, k = np.unravel_index(flat, sc.shape[1:])
         kx, ky = np.unravel_index(k, (n2 + 1, n2 + 1))
@@ -300,7 +296,7 @@ def search(
         offs3 = _angle_grid(0.0, p.fine_angle_step_rad, p.fine_angle_step_rad)
         th3 = (best_th[:, None] + offs3[None, :]).ravel()
         lo3 = np.repeat(best_lo - r2, len(offs3), axis=0)
-        sc3 = _score_lattice(fine, q2, th3, lo3, (3, 3)).reshape(m, -1)
+        sc3 = score_lattice(fine, q2, th3, lo3, (3, 3)).reshape(m, -1)
         flat3 = sc3.argmax(axis=1)
         a3, k3 = np.unravel_index(flat3, (len(offs3), 9))
         kx3, ky3 = np.unravel_index(k3, (3, 3))

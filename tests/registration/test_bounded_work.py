@@ -12,9 +12,9 @@ from factorloc.estimators.icp.reference import MAX_SCAN_POINTS, bounded_points
 from factorloc.registration.global_search import (
     MAX_FIELD_CELLS,
     GlobalSearchParams,
-    _score_lattice,
     build_field,
     reference_fields,
+    score_lattice,
     search,
 )
 from factorloc.sim import apartment
@@ -29,9 +29,9 @@ def _room() -> np.ndarray:
 def test_a_query_far_outside_the_field_scores_zero_without_a_huge_pad():
     field = build_field(_room(), 0.3, 0.3, 0.9)
     # the seed 10⁹ m away once padded the field to (3333333351, 49) cells, 608 GiB
-    scores = _score_lattice(field, _room(), np.array([0.0, 0.5]), np.array([1e9, 0.0]), (49, 49))
+    scores = score_lattice(field, _room(), np.array([0.0, 0.5]), np.array([1e9, 0.0]), (49, 49))
     assert scores.shape == (2, 49, 49) and not scores.any()
-    near = _score_lattice(field, _room(), np.array([0.0]), np.array([-0.3 * 24, -0.3 * 24]), (49, 49))
+    near = score_lattice(field, _room(), np.array([0.0]), np.array([-0.3 * 24, -0.3 * 24]), (49, 49))
     assert near.max() > 0.5  # the same call still finds the room at the centre offset
 
 
