@@ -67,6 +67,10 @@ class MapConfig:
         Align every scan that is not a place to its place with the ICP step (seeded by the odometry offset) and
         hang it there by the ICP pose and covariance when reliable; otherwise (or False) by the odometry offset
         with the odometry model's σ.
+    scan_places
+        How many places a refined scan is aligned to: 1, its nearest along the path; 2, also the place on its
+        other side in time, the two offsets fused (each covariance × 2, as they share the scan's error; needs
+        the marginals, else 1).
     robust
         The robust back end (one of :data:`ROBUST_BACK_ENDS`).
     robust_scale
@@ -90,6 +94,7 @@ class MapConfig:
     fallback_sigma_m: float = 0.3
     fallback_inflation: float = 3.0
     refine_scans: bool = True
+    scan_places: int = 2
     robust: str = "gnc"
     robust_scale: float = 3.0
     gnc_inlier_probability: float = 0.99
@@ -109,6 +114,8 @@ class MapConfig:
             lo = 0 if name == "loop_max_candidates" else 1
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ConfigError(f"mapping.{name} must be an integer >= {lo}, got {v!r}")
+        if self.scan_places not in (1, 2) or isinstance(self.scan_places, bool):
+            raise ConfigError(f"mapping.scan_places must be 1 or 2, got {self.scan_places!r}")
         if not isinstance(self.refine_scans, bool):
             raise ConfigError(f"mapping.refine_scans must be a bool, got {self.refine_scans!r}")
         if self.robust not in ROBUST_BACK_ENDS:

@@ -108,13 +108,14 @@ class MapResult:
     place_covariances
         (P, 3, 3) marginal covariance of each place, world frame (x, y, θ).
     scan_stamps_s, scan_poses
-        (M,) and (M, 3): every scan of the log at ``T_world_place ∘ odom(t_place)⁻¹·odom(t_scan)`` of its nearest
-        place along the path.
+        (M,) and (M, 3): every scan of the log at ``T_world_place ∘ offset`` of its nearest place along the path.
     scan_places
         (M,) the place each scan hangs from.
     scan_offsets, scan_offset_covariances
-        (M, 3) the odometry offset from that place (``[x, y, θ]`` in the place frame) and (M, 3, 3) its
-        covariance (the odometry model's, tangent at the offset; zero for the place's own scan).
+        (M, 3) the scan's offset from that place (``[x, y, θ]`` in the place frame: the ICP step's alignment to it,
+        fused with the alignment to the place on the scan's other side when ``MapConfig.scan_places`` is 2, or
+        the odometry's when no alignment is reliable) and (M, 3, 3) its covariance (tangent at the offset; zero
+        for the place's own scan).
     closures
         Every verified loop-closure proposal with its verdict.
     stats

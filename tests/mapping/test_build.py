@@ -11,7 +11,7 @@ import pytest
 from factorloc.errors import ConfigError, InputError
 from factorloc.geometry import Pose2
 from factorloc.mapping import MapConfig, MapResult, build_map
-from factorloc.mapping.build import _Builder, _Link
+from factorloc.mapping.build import _Builder, _fuse_offsets, _Link, _oriented
 
 
 def _rmse(result: MapResult, true: np.ndarray) -> tuple[float, float]:
@@ -84,6 +84,35 @@ def test_the_marginals_cover_the_errors_of_the_places(sim_run, sim_map) -> None:
     assert places[3].T_world_place == sim_map.pose(3) and places[3].covariance.shape == (3, 3)
 
 
+def test_two_alignments_of_one_scan_are_fused_by_hand_computation() -> None:
+    # two equal covariances, exact places (Σ_pq = 0): the fused offset is halfway, its covariance the single one's
+    # (each entered × 2: they share the scan's error)
+    cov = np.diag([0.01**2, 0.02**2, math.radians(0.5) ** 2])
+    d_p = Pose2(1.0, 0.0, 0.0)
+    T_pq = Pose2(2.0, 0.0, 0.0)
+    d_q = Pose2(-1.0, 0.04, 0.0)  # the same scan seen from q: 4 cm to the left of where p puts it
+    fused, c = _fuse_offsets((d_p, cov), (d_q, cov), T_pq, np.zeros((3, 3)))
+    assert fused.x == pytest.approx(1.0, abs=1e-12) and fused.y == pytest.approx(0.02, abs=1e-12)
+    assert np.allclose(c, cov, rtol=1e-12, atol=0.0)
+    # the places' relative uncertainty weighs the carried alignment down: K = Σ(Σ + Σ + Σ_pq)⁻¹ per axis here
+    sig_pq = np.diag([0.0, 0.02**2, 0.0])
+    fused, c = _fuse_offsets((d_p, cov), (d_q, cov), T_pq, sig_pq)
+    k_y = 0.02**2 / (2 * 0.02**2 + 0.02**2)
+    assert fused.y == pytest.approx(0.04 * k_y, rel=1e-9) and c[1, 1] == pytest.approx(2 * (1 - k_y) * 0.02**2, rel=1e-9)
+    # the covariance of the inverse relative pose (q before p), against a Monte Carlo of Pose2 inverses
+    X = Pose2(0.5, 0.1, 0.3)  # T_p⁻¹T_q when q precedes p; the consecutive covariance is that of X⁻¹
+    cov_fwd = np.diag([0.02**2, 0.01**2, 0.01**2])
+    rng = np.random.default_rng(1)
+    xs = rng.multivariate_normal(np.zeros(3), cov_fwd, 20000)
+    import gtsam
+
+    Y = X.inverse()
+    samples = [np.asarray(gtsam.Pose2.Logmap(X.to_gtsam().between((Y.to_gtsam() * gtsam.Pose2.Expmap(x)).inverse()))) for x in xs]
+    want = _oriented(cov_fwd, X, False)
+    scale = np.sqrt(np.outer(np.diag(want), np.diag(want)))
+    assert np.all(np.abs(np.cov(np.array(samples).T) - want) / scale < 0.03)  # 20000 samples: ~1 % noise
+
+
 def test_bad_input_raises() -> None:
     with pytest.raises(InputError):
         build_map("not a log")  # type: ignore[arg-type]
@@ -91,6 +120,8 @@ def test_bad_input_raises() -> None:
         MapConfig(robust="tukey")
     with pytest.raises(ConfigError, match="place_spacing_m"):
         MapConfig(place_spacing_m=0.0)
+    with pytest.raises(ConfigError, match="scan_places"):
+        MapConfig(scan_places=3)
 
 
 def test_a_prefix_of_the_intel_log_beats_its_odometry(shared_data: Path) -> None:
@@ -110,3 +141,8 @@ def test_a_prefix_of_the_intel_log_beats_its_odometry(shared_data: Path) -> None
     row = next(r for r in summarize(map_relations(result, rel, log)) if r["subset"] == "all")
     assert row["trans_mean_cm"] < 3.1 and row["rot_mean_deg"] < 1.0, row
     assert row["confidently_wrong_rate"] <= 0.05
+    # each scan aligned to the places on both sides of it (the default) is more exact than to its nearest one
+    # alone (measured: 1.69 vs 1.73 cm on these 47 relations; the whole logs in docs/mapping.md)
+    one = build_map(log, MapConfig(scan_places=1), marginals=False)
+    row_one = next(r for r in summarize(map_relations(one, rel, log, covariance=False)) if r["subset"] == "all")
+    assert row["trans_mean_cm"] < row_one["trans_mean_cm"] - 0.02, (row, row_one)
