@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import ast
 import json
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -36,6 +37,8 @@ from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
 from factorloc.evaluation.map_relations import map_relations
 from factorloc.evaluation.relations import Relations, format_table, read_relations, relations_benchmark, summarize
 from factorloc.evaluation.relations_consistency import relations_consistency
+from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, relations_lattice
+from factorloc.geometry import Pose2
 from factorloc.mapping import MapConfig, build_map
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
@@ -84,6 +87,33 @@ def _config(items: list[str]) -> MapConfig:
         if "." in k:
             config = _with(config, k, v)
     return config
+
+
+def _print_grid(result, rel, log, lattice, rows) -> None:  # noqa: ANN001
+    """The map on the relations on the grid, and where it lies between the odometry and the relation."""
+    on = np.flatnonzero(lattice.on_lattice)
+    print(
+        f"map on the {len(on)} relations on the grid: {100 * np.mean([rows[i].error_translation_m for i in on]):.2f} cm "
+        f"(the grid's own floor on them: {100 * SQUARE_MEAN_DISTANCE * lattice.step_m:.2f} cm)"
+    )
+    stamps = result.scan_stamps_s
+
+    def scan_pose(t: float) -> Pose2:
+        return Pose2.from_array(result.scan_poses[int(np.argmin(np.abs(stamps - t)))])
+
+    for steps in (0.0, 1.0, math.sqrt(2.0)):
+        sel = [i for i in on if abs(lattice.residual_norms_m[i] - steps * lattice.step_m) < lattice.tolerance_m]
+        to_odo, to_rel = [], []
+        for i in sel:
+            t1, t2 = float(rel.t1_s[i]), float(rel.t2_s[i])
+            M, D = scan_pose(t1).between(scan_pose(t2)), log.odometry.between(t1, t2)
+            to_odo.append(math.hypot(M.x - D.x, M.y - D.y))
+            to_rel.append(math.hypot(M.x - rel.poses[i][0], M.y - rel.poses[i][1]))
+        if sel:
+            print(
+                f"  relation = odometry + {100 * steps * lattice.step_m:.2f} cm ({len(sel)}): the map is "
+                f"{100 * np.mean(to_odo):.2f} cm from the odometry, {100 * np.mean(to_rel):.2f} cm from the relation"
+            )
 
 
 def main() -> None:
@@ -137,6 +167,10 @@ def main() -> None:
             f"map on those {len(on_cycles)} relations: {100 * np.mean([r.error_translation_m for r in on_cycles]):.2f} cm / "
             f"{np.mean([r.error_rotation_deg for r in on_cycles]):.3f} deg"
         )
+    lattice = relations_lattice(rel, log.odometry)
+    print(f"the relations against the odometry: {lattice.summary()}")
+    if lattice.grid_share > 0.5:
+        _print_grid(result, rel, log, lattice, rows)
     s = result.stats
     print(
         f"{s['places']} places of {len(log.scans)} scans, {s['scan_factors']} consecutive ICP links, "

@@ -1,0 +1,91 @@
+"""relations_lattice: relations made by a grid matcher around the odometry are found, others are not."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factorloc.datasets.rosbag import OdometryTrack
+from factorloc.errors import InputError
+from factorloc.evaluation.relations import Relations
+from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, relations_lattice
+from factorloc.geometry import Pose2
+
+
+def _odometry(n: int = 400) -> OdometryTrack:
+    rng = np.random.default_rng(3)
+    t = np.arange(n) * 0.2
+    th = np.cumsum(rng.normal(0.0, 0.05, n))
+    xy = np.cumsum(0.1 * np.stack([np.cos(th), np.sin(th)], 1), 0)
+    return OdometryTrack(t, np.column_stack([xy, th]))
+
+
+def _relations(odom: OdometryTrack, offset) -> Relations:  # noqa: ANN001 - offset(k) -> (dx, dy)
+    t1 = odom.stamps_s[:-3]
+    t2 = odom.stamps_s[3:]
+    poses = []
+    for k, (a, b) in enumerate(zip(t1, t2, strict=True)):
+        D = odom.between(float(a), float(b))
+        dx, dy = offset(k)
+        poses.append([D.x + dx, D.y + dy, D.theta + 0.01])
+    return Relations(t1, t2, np.array(poses))
+
+
+def test_a_grid_matchers_relations_are_on_the_lattice_with_the_square_floor() -> None:
+    odom = _odometry()
+    rng = np.random.default_rng(4)
+    steps = rng.integers(-2, 3, (len(odom), 2))
+    angle = rng.uniform(0, 2 * math.pi, len(odom))  # the grid laid in any frame: only the norm is tested
+
+    def on_grid(k: int) -> tuple[float, float]:
+        v = 0.05 * steps[k]
+        c, s = math.cos(angle[k]), math.sin(angle[k])
+        return c * v[0] - s * v[1], s * v[0] + c * v[1]
+
+    lat = relations_lattice(_relations(odom, on_grid), odom)
+    assert lat.rate == 1.0 and lat.chance_rate < 0.1
+    assert lat.floor_mean_error_m == pytest.approx(SQUARE_MEAN_DISTANCE * 0.05 * lat.grid_share, rel=1e-12)
+    assert 0.018 < lat.floor_mean_error_m <= 0.0192
+    assert "grid steps" in lat.summary()
+
+
+def test_relations_with_continuous_errors_are_at_chance() -> None:
+    odom = _odometry()
+    rng = np.random.default_rng(5)
+    noise = rng.normal(0.0, 0.02, (len(odom), 2))
+    lat = relations_lattice(_relations(odom, lambda k: tuple(noise[k])), odom)
+    assert abs(lat.rate - lat.chance_rate) < 0.05 and lat.grid_share < 0.05
+    assert lat.floor_mean_error_m < 0.001
+
+
+def test_the_square_mean_distance_is_the_monte_carlo_one() -> None:
+    u = np.random.default_rng(6).uniform(-0.5, 0.5, (200_000, 2))
+    assert float(np.hypot(u[:, 0], u[:, 1]).mean()) == pytest.approx(SQUARE_MEAN_DISTANCE, abs=2e-3)
+
+
+def test_bad_input_raises() -> None:
+    odom = _odometry(20)
+    rel = _relations(odom, lambda k: (0.0, 0.0))
+    with pytest.raises(InputError, match="step_m"):
+        relations_lattice(rel, odom, step_m=float("nan"))
+    with pytest.raises(InputError, match="half the step"):
+        relations_lattice(rel, odom, step_m=0.05, tolerance_m=0.03)
+    with pytest.raises(InputError, match="non-empty"):
+        relations_lattice(Relations(np.zeros(0), np.zeros(0), np.zeros((0, 3))), odom)
+    with pytest.raises(InputError, match="OdometryTrack"):
+        relations_lattice(rel, Pose2(0, 0, 0))  # type: ignore[arg-type]
+
+
+def test_mit_csails_relations_are_its_odometry_on_a_5_cm_grid(shared_data: Path) -> None:
+    from factorloc.datasets.rosbag import read_laser_log
+    from factorloc.evaluation.relations import read_relations
+
+    laser = shared_data / "laser"
+    mit = relations_lattice(read_relations(laser / "mit-csail.relations"), read_laser_log(laser / "mit-csail.sort.bag").odometry)
+    assert mit.rate > 0.85 and mit.chance_rate < 0.05  # measured: 89.1 % (1,044 of 1,172), chance 2.5 %
+    assert 0.016 < mit.floor_mean_error_m < 0.018  # 1.70 cm: far above the published 0.4 cm
+    intel = relations_lattice(read_relations(laser / "intel.relations"), read_laser_log(laser / "intel.sort.bag").odometry)
+    assert intel.grid_share < 0.05  # measured 3.4 % at a chance of 1.5 %: no grid
