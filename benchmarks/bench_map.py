@@ -175,7 +175,8 @@ def main() -> None:
     print(
         f"{s['places']} places of {len(log.scans)} scans, {s['scan_factors']} consecutive ICP links, "
         f"{s['closures_accepted']} closures accepted / {s['closures_reliable']} reliable / {s['closures_proposed']} "
-        f"proposed, {s['scans_refined']} scans refined; wall time {wall:.1f} s, CPU time {cpu:.1f} s "
+        f"proposed ({s['closures_recognized']} added by recognition, {s['seconds_recognition']:.1f} s), "
+        f"{s['scans_refined']} scans refined; wall time {wall:.1f} s, CPU time {cpu:.1f} s "
         f"(ICP {s['seconds_icp']:.1f}, iSAM2 {s['seconds_isam']:.1f}, batch {s['seconds_batch']:.1f}, "
         f"marginals {s['seconds_marginals']:.1f}, scans {s['seconds_scans']:.1f})"
     )

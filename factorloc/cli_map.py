@@ -44,6 +44,13 @@ def map_command(
     turn_deg: Annotated[float, typer.Option("--turn-deg", help="Degrees of rotation between places.")] = 20.0,
     robust: Annotated[str, typer.Option("--robust", help="Back end: gnc, huber, cauchy or none.")] = "gnc",
     no_refine: Annotated[bool, typer.Option("--no-refine", help="Hang scans from their place by odometry only.")] = False,
+    recognition_every: Annotated[
+        int,
+        typer.Option(
+            "--recognition-every",
+            help="Also propose loop closures by place recognition at every N-th place (0: off; docs/mapping.md).",
+        ),
+    ] = 0,
     max_scans: Annotated[int | None, typer.Option("--max-scans", help="Use only the first N scans.")] = None,
     scan_topic: Annotated[str, typer.Option("--scan-topic", help="sensor_msgs/LaserScan topic of a bag.")] = "/scan",
     odom_topic: Annotated[str, typer.Option("--odom-topic", help="nav_msgs/Odometry topic of a bag.")] = "/odom",
@@ -68,7 +75,11 @@ def map_command(
         if place_covariance not in PLACE_COVARIANCES:
             raise InputError(f"--place-covariance must be one of {', '.join(PLACE_COVARIANCES)}, got {place_covariance!r}")
         config = MapConfig(
-            place_spacing_m=spacing, place_turn_rad=math.radians(turn_deg), robust=robust, refine_scans=not no_refine
+            place_spacing_m=spacing,
+            place_turn_rad=math.radians(turn_deg),
+            robust=robust,
+            refine_scans=not no_refine,
+            recognition_every=recognition_every,
         )
         log = read_log(log_path, scan_topic, odom_topic, max_scans)
         t_read = time.perf_counter() - t0

@@ -299,11 +299,72 @@ class _Builder:
             self.links.extend(loops)
             self.seconds["isam"] += time.perf_counter() - t0
 
+    def recognize_loops(self) -> None:
+        """Loop closures proposed by place recognition (``recognition_every``), verified, added before the batch."""
+        import gtsam
+
+        from factorloc.places import Place, PlaceMap, PlaceRecognizer
+        from factorloc.types import Query, Reference, Scan
+
+        cfg = self.config
+        t0 = time.perf_counter()
+        poses = gtsam.utilities.extractPose2(self.isam.calculateEstimate())
+        ids = [f"p{k:05d}" for k in range(len(self.idx))]
+        pm = PlaceMap([Place(ids[k], Reference(scan=Scan(self.points[k])), Pose2.from_array(poses[k])) for k in range(len(ids))])
+        recognizer = PlaceRecognizer(pm, cfg.recognition)
+        proposed = {(c.place_from, c.place_to) for c in self.closures}
+        seed_cov = np.diag([cfg.recognition_sigma_m**2, cfg.recognition_sigma_m**2, cfg.recognition_sigma_rad**2])
+        self.seconds["recognition"] = time.perf_counter() - t0
+        loops: list[_Link] = []
+        for j in range(cfg.recognition_every, len(ids), cfg.recognition_every):
+            t0 = time.perf_counter()
+            older = self.path[j] - cfg.loop_min_path_m
+            found = recognizer.candidates(
+                Query(scan=Scan(self.points[j]), id=f"q{j}"),
+                cfg.recognition_k,
+                exclude=lambda pid, older=older: self.path[int(pid[1:])] > older,
+            )
+            self.seconds["recognition"] += time.perf_counter() - t0
+            for cand in found:
+                i = int(cand.place_id[1:])
+                if (i, j) in proposed or cand.T_place_query is None:
+                    continue
+                proposed.add((i, j))
+                t0 = time.perf_counter()
+                hyp = Hypotheses((Estimate.pose("recognition", cand.T_place_query, covariance=seed_cov),))
+                est = estimate(self.refs[i], self.points[j], hyp, self.fallback_cfg)
+                self.seconds["icp"] += time.perf_counter() - t0
+                ok = _full_position(est)
+                T_ij = Pose2.from_array(est.values) if est.kind == "full" else cand.T_place_query
+                used_global = bool(est.diagnostics.get("used_global_init", False))
+                self.closures.append(
+                    Closure(
+                        i,
+                        j,
+                        T_ij,
+                        np.array(est.covariance),
+                        ok,
+                        est.reason,
+                        est.checks,
+                        used_global,
+                        cand.T_place_query,
+                        cfg.recognition_sigma_m,
+                        proposed_by="recognition",
+                    )
+                )
+                if ok:
+                    loops.append(_Link("loop", i, j, T_ij, _body_covariance(T_ij, est.covariance)))
+        self.links.extend(loops)
+        self.n_recognized = len(loops)
+
     def finish(self, marginals: bool, t_start: float) -> MapResult:
         """The batch back end, the marginals, every scan's pose."""
         import gtsam
 
         n = len(self.idx)
+        self.n_recognized = 0
+        if self.config.recognition_every > 0:
+            self.recognize_loops()
         t0 = time.perf_counter()
         final_graph, result, weights = _batch(self.links, self.T0, self.isam.calculateEstimate(), self.config)
         sec_batch = time.perf_counter() - t0
@@ -333,6 +394,8 @@ class _Builder:
             "closures_reliable": sum(c.reliable for c in closures),
             "closures_accepted": sum(c.accepted for c in closures),
             "scans_refined": n_refined,
+            "closures_recognized": self.n_recognized,
+            "seconds_recognition": self.seconds.get("recognition", 0.0),
             "back_end": self.config.robust,
             "seconds_icp": self.seconds["icp"],
             "seconds_isam": self.seconds["isam"],

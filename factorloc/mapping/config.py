@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from factorloc.errors import ConfigError
 from factorloc.estimators.icp import IcpConfig
 from factorloc.odometry_model import OdometryModel
+from factorloc.places.recognition import RecognitionConfig
 
 __all__ = ["ROBUST_BACK_ENDS", "MapConfig"]
 
@@ -71,6 +72,20 @@ class MapConfig:
         How many places a refined scan is aligned to: 1, its nearest along the path; 2, also the place on its
         other side in time, the two offsets fused (each covariance × 2, as they share the scan's error; needs
         the marginals, else 1).
+    recognition_every
+        Every this many places, the place is also a place-recognition query against the older places (at least
+        ``loop_min_path_m`` of path behind; :class:`~factorloc.places.PlaceRecognizer` on the streaming
+        estimate's places, configured by ``recognition``), and its ``recognition_k`` best candidates not already
+        proposed by proximity are verified by the ICP step seeded by the match's pose (its global search in the
+        window of ``recognition_sigma_m`` / ``recognition_sigma_rad``) and, when reliable, added before the batch
+        back end (whose GNC switches a wrong one off). 0 turns it off (proposals by pose proximity only).
+    recognition_k
+        Candidates verified per recognition query.
+    recognition_sigma_m, recognition_sigma_rad
+        σ of the seed a recognized candidate gives its verification (the match's lattice is 0.3 m and 6°).
+    recognition
+        The place recognition's configuration (a local submap per place from its neighbours within
+        ``submap_radius_m``, a D2 shortlist of ``match_shortlist`` places per query).
     robust
         The robust back end (one of :data:`ROBUST_BACK_ENDS`).
     robust_scale
@@ -95,13 +110,25 @@ class MapConfig:
     fallback_inflation: float = 3.0
     refine_scans: bool = True
     scan_places: int = 2
+    recognition_every: int = 0
+    recognition_k: int = 3
+    recognition_sigma_m: float = 0.3
+    recognition_sigma_rad: float = math.radians(6.0)
+    recognition: RecognitionConfig = field(default_factory=lambda: RecognitionConfig(submap_radius_m=3.0, match_shortlist=30))
     robust: str = "gnc"
     robust_scale: float = 3.0
     gnc_inlier_probability: float = 0.99
 
     def __post_init__(self) -> None:
         positive = ("place_spacing_m", "place_turn_rad", "loop_max_search_m", "loop_max_heading_rad", "global_sigma_m")
-        for name in (*positive, "fallback_sigma_m", "fallback_inflation", "robust_scale"):
+        for name in (
+            *positive,
+            "fallback_sigma_m",
+            "fallback_inflation",
+            "robust_scale",
+            "recognition_sigma_m",
+            "recognition_sigma_rad",
+        ):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0.0 and math.isfinite(v)):
                 raise ConfigError(f"mapping.{name} must be a finite number > 0, got {v!r}")
@@ -109,9 +136,9 @@ class MapConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0.0 and math.isfinite(v)):
                 raise ConfigError(f"mapping.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("min_scan_points", "loop_max_candidates", "loop_every"):
+        for name in ("min_scan_points", "loop_max_candidates", "loop_every", "recognition_every", "recognition_k"):
             v = getattr(self, name)
-            lo = 0 if name == "loop_max_candidates" else 1
+            lo = 0 if name in ("loop_max_candidates", "recognition_every") else 1
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ConfigError(f"mapping.{name} must be an integer >= {lo}, got {v!r}")
         if self.scan_places not in (1, 2) or isinstance(self.scan_places, bool):
@@ -124,5 +151,7 @@ class MapConfig:
             raise ConfigError(f"mapping.gnc_inlier_probability must be in (0, 1), got {self.gnc_inlier_probability!r}")
         if not isinstance(self.odometry, OdometryModel):
             raise ConfigError(f"mapping.odometry must be an OdometryModel, got {type(self.odometry).__name__}")
+        if not isinstance(self.recognition, RecognitionConfig):
+            raise ConfigError(f"mapping.recognition must be a RecognitionConfig, got {type(self.recognition).__name__}")
         if not isinstance(self.icp, IcpConfig):
             raise ConfigError(f"mapping.icp must be an IcpConfig, got {type(self.icp).__name__}")

@@ -37,6 +37,7 @@ def map_to_dict(result: MapResult) -> dict[str, Any]:
             "accepted": c.accepted,
             "weight": None if math.isnan(c.weight) else c.weight,
             "used_global": c.used_global,
+            "proposed_by": c.proposed_by,
             "reason": c.reason,
         }
         for c in result.closures

@@ -55,7 +55,9 @@ class Closure:
     of the added factor (1 inlier, 0 rejected by GNC; NaN when not added because the step called it
     unreliable); ``accepted`` = reliable and weight ≥ 0.5. When the step answered with part of the pose only
     (e.g. the position, its heading unconstrained), the closure is unreliable, ``T_from_to`` is the seed and
-    ``covariance`` the step's covariance of the components it measured.
+    ``covariance`` the step's covariance of the components it measured. ``proposed_by``: ``"proximity"`` (the
+    streaming estimate's pose proximity) or ``"recognition"`` (place recognition, ``MapConfig.recognition_every``;
+    ``seed`` is then the match's pose and ``seed_sigma_m`` the σ given to it).
     """
 
     place_from: int
@@ -69,6 +71,7 @@ class Closure:
     seed: Pose2
     seed_sigma_m: float
     weight: float = math.nan
+    proposed_by: str = "proximity"
 
     @property
     def accepted(self) -> bool:

@@ -146,3 +146,21 @@ def test_a_prefix_of_the_intel_log_beats_its_odometry(shared_data: Path) -> None
     one = build_map(log, MapConfig(scan_places=1), marginals=False)
     row_one = next(r for r in summarize(map_relations(one, rel, log, covariance=False)) if r["subset"] == "all")
     assert row["trans_mean_cm"] < row_one["trans_mean_cm"] - 0.02, (row, row_one)
+
+
+def test_place_recognition_proposes_closures_that_the_back_end_checks(sim_run) -> None:
+    log, true = sim_run
+    result = build_map(log, MapConfig(recognition_every=3), marginals=False)
+    recognized = [c for c in result.closures if c.proposed_by == "recognition"]
+    assert recognized and result.stats["closures_recognized"] == sum(c.reliable for c in recognized)
+    idx = result.place_scan_indices
+    for c in recognized:
+        if c.accepted:  # what the back end keeps is right
+            T_true = Pose2.from_array(true[idx[c.place_from]]).between(Pose2.from_array(true[idx[c.place_to]]))
+            e = T_true.between(c.T_from_to)
+            assert math.hypot(e.x, e.y) < 0.05 and abs(math.degrees(e.theta)) < 0.5, (c.place_from, c.place_to, e)
+    assert any(c.accepted for c in recognized)
+    rmse_m, rmse_deg = _rmse(result, true)
+    assert rmse_m < 0.02 and rmse_deg < 0.2
+    with pytest.raises(ConfigError, match="recognition_every"):
+        MapConfig(recognition_every=-1)
