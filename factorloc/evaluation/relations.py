@@ -268,6 +268,7 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
                 nees_icp = float(e @ np.linalg.solve(icp_est.covariance[:2, :2], e))
                 diag.update(
                     icp_nees_position=nees_icp,
+                    icp_covariance_position=icp_est.covariance[:2, :2].tolist(),
                     icp_sigma_theta_rad=icp_est.sigma("theta"),
                     **{
                         k: v
