@@ -1,7 +1,7 @@
 """The ICP step's position NEES against the relations, and against the true motion where the relations are gridded.
 
 Where a log's relations are its odometry moved by whole grid steps of ``s``
-(:func:`factorloc.evaluation.relations_lattice.relations_lattice`; MIT CSAIL's local relations, 5 cm), the relation
+(:func:`factorloc.evaluation.relations_lattice.find_relations_grid`; MIT CSAIL's local relations, 5 cm), the relation
 is the true motion plus a rounding error uniform over the grid cell, independent of the step's own error: its
 covariance is ``s²/12 · I``, and the NEES measured against the relation is the NEES against the true motion plus
 ``s²/12 · tr(Σ⁻¹)`` on average. This prints, per log and kind (local / loop), over the reliable ICP estimates of
@@ -21,7 +21,7 @@ import numpy as np
 
 from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation.relations import Relations, read_relations, relations_benchmark
-from factorloc.evaluation.relations_lattice import relations_lattice
+from factorloc.evaluation.relations_lattice import find_relations_grid
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
 LOGS = {"intel": ("intel.sort.bag", "intel.relations"), "aces": ("aces.sort.bag", "aces.relations"),
@@ -39,8 +39,7 @@ def main() -> None:
         bag, relf = LOGS[name]
         log = read_laser_log(args.data / bag)
         rel = read_relations(args.data / relf)
-        lattice = relations_lattice(rel, log.odometry)
-        grid = lattice.grid_share > 0.5  # a log whose relations are gridded (else chance hits are not discounted)
+        lattice = find_relations_grid(rel, log.odometry)  # None: not gridded (chance hits are not discounted)
         sub = np.arange(0, len(rel), args.every)
         rows = relations_benchmark(log, Relations(rel.t1_s[sub], rel.t2_s[sub], rel.poses[sub]), methods=("ours", "ours_icp"))
         for kind in ("local", "loop"):
@@ -49,7 +48,7 @@ def main() -> None:
                 if r.method != "ours_icp" or r.kind != kind or not r.reliable or not math.isfinite(r.nees_position):
                     continue
                 C = np.array(r.diagnostics["icp_covariance_position"])
-                on = grid and bool(lattice.on_lattice[sub[r.index]])
+                on = lattice is not None and bool(lattice.on_lattice[sub[r.index]])
                 part = (lattice.step_m**2 / 12.0) * float(np.trace(np.linalg.inv(C))) if on else 0.0
                 vals.append((r.nees_position, part, float(np.trace(C)) / 2.0))
             if vals:

@@ -37,7 +37,7 @@ from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
 from factorloc.evaluation.map_relations import map_relations
 from factorloc.evaluation.relations import Relations, format_table, read_relations, relations_benchmark, summarize
 from factorloc.evaluation.relations_consistency import relations_consistency
-from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, relations_lattice
+from factorloc.evaluation.relations_lattice import GRID_STEPS_M, SQUARE_MEAN_DISTANCE, find_relations_grid
 from factorloc.geometry import Pose2
 from factorloc.mapping import MapConfig, build_map
 
@@ -167,9 +167,14 @@ def main() -> None:
             f"map on those {len(on_cycles)} relations: {100 * np.mean([r.error_translation_m for r in on_cycles]):.2f} cm / "
             f"{np.mean([r.error_rotation_deg for r in on_cycles]):.3f} deg"
         )
-    lattice = relations_lattice(rel, log.odometry)
-    print(f"the relations against the odometry: {lattice.summary()}")
-    if lattice.grid_share > 0.5:
+    lattice = find_relations_grid(rel, log.odometry)
+    if lattice is None:
+        print(
+            "the relations against the odometry: no grid (no step of "
+            f"{', '.join(f'{100 * s:g}' for s in GRID_STEPS_M)} cm puts half of them on it beyond chance)"
+        )
+    else:
+        print(f"the relations against the odometry: {lattice.summary()}")
         _print_grid(result, rel, log, lattice, rows)
     s = result.stats
     print(

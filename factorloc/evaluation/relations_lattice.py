@@ -28,7 +28,10 @@ from factorloc.datasets.rosbag import OdometryTrack
 from factorloc.errors import InputError
 from factorloc.evaluation.relations import Relations
 
-__all__ = ["SQUARE_MEAN_DISTANCE", "RelationsLattice", "relations_lattice"]
+__all__ = ["GRID_STEPS_M", "SQUARE_MEAN_DISTANCE", "RelationsLattice", "find_relations_grid", "relations_lattice"]
+
+#: The grid steps :func:`find_relations_grid` tries (m).
+GRID_STEPS_M = (0.005, 0.01, 0.02, 0.025, 0.05, 0.1)
 
 #: Mean distance of a uniform point of the unit square from its centre, (√2 + asinh 1) / 6.
 SQUARE_MEAN_DISTANCE = (math.sqrt(2.0) + math.asinh(1.0)) / 6.0
@@ -138,3 +141,28 @@ def relations_lattice(
     moved = np.abs(norms + rng.uniform(-0.5 * step_m, 0.5 * step_m, len(norms)))
     chance = float((_near(moved, lattice, tolerance_m) & (moved <= max_norm_m)).mean())
     return RelationsLattice(float(step_m), float(tolerance_m), norms, on, chance)
+
+
+def find_relations_grid(
+    relations: Relations,
+    odometry: OdometryTrack,
+    *,
+    steps_m: tuple[float, ...] = GRID_STEPS_M,
+    min_share: float = 0.5,
+    tolerance_m: float = 5e-4,
+) -> RelationsLattice | None:
+    """The grid a log's relations were rounded to, if any: :func:`relations_lattice` at each of ``steps_m``.
+
+    A grid of step s also puts its relations on every grid whose step divides s (5 cm steps are 1 cm steps), so
+    the step is the *largest* whose :attr:`~RelationsLattice.grid_share` is within 95 % of the best share of all
+    the steps tried; None when no step puts at least ``min_share`` of the relations on its grid beyond chance.
+    (MIT CSAIL: 0.5 cm 0.80, 1 cm 0.87, 2 cm 0.42, 2.5 cm 0.88, 5 cm 0.89, 10 cm 0.47 → 5 cm; Intel and ACES:
+    none above 0.07.)
+    """
+    if not steps_m:
+        raise InputError("steps_m must name at least one grid step")
+    tried = [relations_lattice(relations, odometry, step_m=s, tolerance_m=min(tolerance_m, 0.4 * s)) for s in steps_m]
+    best = max(t.grid_share for t in tried)
+    if not best >= min_share:
+        return None
+    return max((t for t in tried if t.grid_share >= 0.95 * best), key=lambda t: t.step_m)

@@ -11,7 +11,7 @@ import pytest
 from factorloc.datasets.rosbag import OdometryTrack
 from factorloc.errors import InputError
 from factorloc.evaluation.relations import Relations
-from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, relations_lattice
+from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, find_relations_grid, relations_lattice
 from factorloc.geometry import Pose2
 
 
@@ -50,6 +50,9 @@ def test_a_grid_matchers_relations_are_on_the_lattice_with_the_square_floor() ->
     assert lat.floor_mean_error_m == pytest.approx(SQUARE_MEAN_DISTANCE * 0.05 * lat.grid_share, rel=1e-12)
     assert 0.018 < lat.floor_mean_error_m <= 0.0192
     assert "grid steps" in lat.summary()
+    # the step is found among the candidates: the largest whose grid holds (nearly) as many as the best
+    found = find_relations_grid(_relations(odom, on_grid), odom)
+    assert found is not None and found.step_m == 0.05
 
 
 def test_relations_with_continuous_errors_are_at_chance() -> None:
@@ -59,6 +62,7 @@ def test_relations_with_continuous_errors_are_at_chance() -> None:
     lat = relations_lattice(_relations(odom, lambda k: tuple(noise[k])), odom)
     assert abs(lat.rate - lat.chance_rate) < 0.05 and lat.grid_share < 0.05
     assert lat.floor_mean_error_m < 0.001
+    assert find_relations_grid(_relations(odom, lambda k: tuple(noise[k])), odom) is None
 
 
 def test_the_square_mean_distance_is_the_monte_carlo_one() -> None:
@@ -89,3 +93,7 @@ def test_mit_csails_relations_are_its_odometry_on_a_5_cm_grid(shared_data: Path)
     assert 0.016 < mit.floor_mean_error_m < 0.018  # 1.70 cm: far above the published 0.4 cm
     intel = relations_lattice(read_relations(laser / "intel.relations"), read_laser_log(laser / "intel.sort.bag").odometry)
     assert intel.grid_share < 0.05  # measured 3.4 % at a chance of 1.5 %: no grid
+    found = find_relations_grid(
+        read_relations(laser / "mit-csail.relations"), read_laser_log(laser / "mit-csail.sort.bag").odometry
+    )
+    assert found is not None and found.step_m == 0.05
