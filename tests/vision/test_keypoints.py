@@ -176,3 +176,21 @@ def test_windowed_matcher_refuses_azimuths_that_do_not_fit_the_descriptors() -> 
     d = np.zeros((5, 128), np.float32)
     with pytest.raises(InputError, match="ref_az_rad"):
         match_in_window(d, np.zeros(5), d, np.zeros(4), 0.0, 0.5, 0.8)
+
+
+def test_compiled_vote_consensus_and_support_agree_with_the_numpy_reference() -> None:
+    """The compiled votes (sequential circular mean) and the NumPy reference (pairwise): the same inliers and
+    rival support on 300 vote sets with a mode and outliers, the mode within 1e-12 rad."""
+    from factorloc.vision.keypoints import support_rows
+
+    rng = np.random.default_rng(5)
+    band = math.radians(1.5)
+    for _ in range(300):
+        n = int(rng.integers(1, 150))
+        votes = np.concatenate([rng.normal(rng.uniform(-4, 4), 0.01, n // 2 + 1), rng.uniform(-7, 7, n)])
+        ref = vote_consensus(votes, band, compiled=False)
+        got = vote_consensus(votes, band)
+        assert np.array_equal(ref[1], got[1]) and ref[2] == got[2]
+        assert abs(math.remainder(ref[0] - got[0], 2 * math.pi)) < 1e-12
+    rows = rng.uniform(-7.0, 7.0, (24, 90))
+    assert np.array_equal(support_rows(rows, band, compiled=False), support_rows(rows, band))
