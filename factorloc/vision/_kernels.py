@@ -15,6 +15,8 @@ configure()
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
+_LANES = 16
+
 
 @njit(cache=True)
 def two_nearest_in_window(
@@ -35,28 +37,43 @@ def two_nearest_in_window(
     best_j = np.zeros(nq, dtype=np.int64)
     best = np.full(nq, np.inf, dtype=np.float32)
     second = np.full(nq, np.inf, dtype=np.float32)
-    row = np.empty(nr, dtype=np.float32)
+    npad = ((nr + _LANES - 1) // _LANES) * _LANES
+    row = np.empty(npad, dtype=np.float32)
     inf = np.float32(np.inf)
+    row[nr:] = inf
+    lo = np.empty(_LANES, dtype=np.float32)
+    nx = np.empty(_LANES, dtype=np.float32)
+    kk = np.empty(_LANES, dtype=np.int64)
     for i in range(nq):
         b = az_query[i]
         for j in range(nr):  # branch-free: vectorized
             x = az_ref[j] - b
             x = x - two_pi * np.rint(x / two_pi)
             row[j] = d2[i, j] + ref_sq_norms[j] if abs(x) <= reach else inf
-        lo = inf
-        nx = inf
-        k = 0
-        for j in range(nr):
-            v = row[j]
-            if v < lo:
-                nx = lo
-                lo = v
-                k = j
-            elif v < nx:
-                nx = v
-        best_j[i] = k
-        best[i] = lo
-        second[i] = nx
+        # the two smallest per lane (column j in lane j mod 16; selects, no branches), then merged: the smallest
+        # value, its first column, and the second smallest of the row (a tie with the smallest counts) — the
+        # values and the column a sequential scan finds
+        lo[:] = inf
+        nx[:] = inf
+        kk[:] = 0
+        for j0 in range(0, npad, _LANES):
+            for lane in range(_LANES):
+                v = row[j0 + lane]
+                c = v < lo[lane]
+                nx[lane] = lo[lane] if c else (v if v < nx[lane] else nx[lane])
+                kk[lane] = j0 + lane if c else kk[lane]
+                lo[lane] = v if c else lo[lane]
+        ls = 0
+        for lane in range(1, _LANES):
+            if lo[lane] < lo[ls] or (lo[lane] == lo[ls] and kk[lane] < kk[ls]):
+                ls = lane
+        s2 = nx[ls]
+        for lane in range(_LANES):
+            if lane != ls and lo[lane] < s2:
+                s2 = lo[lane]
+        best_j[i] = kk[ls] if lo[ls] < inf else 0
+        best[i] = lo[ls]
+        second[i] = s2
     return best_j, best, second
 
 
