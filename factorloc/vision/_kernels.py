@@ -230,13 +230,34 @@ def _position_at(
 
 
 @njit(cache=True)
-def _msac(pts: np.ndarray, b: np.ndarray, x: float, y: float, th: float, threshold: float) -> tuple[float, int]:
-    """``Σ min(r², threshold²)`` and the inlier count ``|r| ≤ threshold`` of all bearings at pose (x, y, θ)."""
+def _msac(
+    pts: np.ndarray, b: np.ndarray, cb: np.ndarray, sb: np.ndarray, x: float, y: float, th: float, threshold: float
+) -> tuple[float, int]:
+    """``Σ min(r², threshold²)`` and the inlier count ``|r| ≤ threshold`` of all bearings at pose (x, y, θ).
+
+    ``r = wrap(atan2(P − p) − θ − b)`` is computed only for the bearings that may be inliers: a bearing whose
+    angle to its point, from the rotated direction ``(cos(θ + b), sin(θ + b))`` (``cb``, ``sb`` = cos b, sin b),
+    exceeds the threshold by more than 1 % in tangent (or lies behind) adds ``threshold²`` and no inlier — what
+    the exact residual gives it — without an atan2 (the rounding of the test is ~1e-15, far inside the 1 %).
+    """
     thr2 = threshold * threshold
+    fast = threshold < 1.0
+    tan_far = np.tan(threshold) * 1.01
+    ct, st = np.cos(th), np.sin(th)
     total = 0.0
     count = 0
     for i in range(pts.shape[0]):
-        r = _wrap(np.arctan2(pts[i, 1] - y, pts[i, 0] - x) - th - b[i])
+        dx = pts[i, 0] - x
+        dy = pts[i, 1] - y
+        if fast:
+            ux = ct * cb[i] - st * sb[i]
+            uy = st * cb[i] + ct * sb[i]
+            along = ux * dx + uy * dy
+            across = abs(ux * dy - uy * dx)
+            if along <= 0.0 or across > tan_far * along:
+                total += thr2
+                continue
+        r = _wrap(np.arctan2(dy, dx) - th - b[i])
         total += min(r * r, thr2)
         count += abs(r) <= threshold
     return total, count
@@ -268,6 +289,8 @@ def resection_hypotheses(
     px = np.empty(3)
     py = np.empty(3)
     bb = np.empty(3)
+    cb = np.cos(b)
+    sb = np.sin(b)
     for k in range(k_sets):
         big, gap = _set_rows(pts, b, sets[k], alpha, beta, px, py, bb)
         # det(cα + sβ) = k0 c³ + k1 c² s + k2 c s² + k3 s³ (multilinear in the rows), each term a triple product
@@ -295,7 +318,7 @@ def resection_hypotheses(
             if not ok:
                 continue
             th_w = _wrap(th)
-            total, count = _msac(pts, b, x, y, th_w, threshold)
+            total, count = _msac(pts, b, cb, sb, x, y, th_w, threshold)
             cand[m, 0] = x
             cand[m, 1] = y
             cand[m, 2] = th_w
@@ -303,6 +326,33 @@ def resection_hypotheses(
             m += 1
             best_count = max(best_count, count)
     return cand[:m], cost[:m], best_count, special
+
+
+@njit(cache=True)
+def three_smallest(keys: np.ndarray) -> np.ndarray:
+    """Per row of ``keys`` (K, N ≥ 3): the columns of its three smallest values, in ascending order of value (equal
+    values in ascending column order) — ``np.argsort(keys, axis=1, kind="stable")[:, :3]`` in one pass."""
+    k, n = keys.shape
+    out = np.empty((k, 3), dtype=np.int64)
+    for r in range(k):
+        a0 = a1 = a2 = np.inf
+        i0 = i1 = i2 = 0
+        for j in range(n):
+            v = keys[r, j]
+            if v < a2:
+                if v < a1:
+                    a2, i2 = a1, i1
+                    if v < a0:
+                        a1, i1 = a0, i0
+                        a0, i0 = v, j
+                    else:
+                        a1, i1 = v, j
+                else:
+                    a2, i2 = v, j
+        out[r, 0] = i0
+        out[r, 1] = i1
+        out[r, 2] = i2
+    return out
 
 
 @njit(cache=True)

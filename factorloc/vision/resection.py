@@ -456,7 +456,7 @@ def ransac(
     cands, costs, drawn = [], [], 0
     while drawn < hypotheses:  # batches of 64 minimal sets, until enough for `confidence` at the best inlier ratio
         k = min(64, hypotheses - drawn)
-        sets = _minimal_sets(rng, k, n)
+        sets = _minimal_sets(rng, k, n, False)
         drawn += k
         c = solve_minimal(pts[sets], b[sets]).reshape(-1, 3)
         c = c[np.all(np.isfinite(c), axis=1)]
@@ -497,10 +497,18 @@ def ransac(
     return Resection(p, result.covariance, inl, result.residual_sigma_rad, result.condition, runner_up)
 
 
-def _minimal_sets(rng: np.random.Generator, k: int, n: int) -> np.ndarray:
-    """k random minimal sets of 3 distinct indices of n (the reference's draw, shared by both paths)."""
+def _minimal_sets(rng: np.random.Generator, k: int, n: int, compiled: bool) -> np.ndarray:
+    """k random minimal sets of 3 distinct indices of n, the same on both paths: per set, n uniform keys drawn
+    and the indices of the 3 smallest, in ascending order of key (compiled: one pass,
+    :func:`factorloc.vision._kernels.three_smallest`; reference: a stable argsort)."""
     keys = rng.random((k, n))
-    return np.argpartition(keys, 3, axis=1)[:, :3] if n > 3 else np.tile(np.arange(3), (k, 1))
+    if n <= 3:
+        return np.tile(np.arange(3), (k, 1))
+    if compiled:
+        from factorloc.vision._kernels import three_smallest
+
+        return three_smallest(keys)
+    return np.argsort(keys, axis=1, kind="stable")[:, :3]
 
 
 def _ransac_compiled(
@@ -526,7 +534,7 @@ def _ransac_compiled(
     thr = float(threshold_rad)
     while drawn < hypotheses:  # as the reference: batches of 64, the standard count at the best inlier ratio
         k = min(64, hypotheses - drawn)
-        sets = _minimal_sets(rng, k, n)
+        sets = _minimal_sets(rng, k, n, True)
         drawn += k
         c, cost, count, special = kr.resection_hypotheses(pts, b, sets, thr)
         if np.any(special):  # θ ≈ ±π/2 a root of the cubic (rare): the reference solver, appended after the batch
