@@ -209,3 +209,18 @@ def test_compiled_minimal_cubic_finds_every_exact_pose() -> None:
             continue
         assert min(np.max(np.abs(_err(Pose2(*c), truth))) for c in cand) < 1e-7
         assert count == 3 and np.all(cost < 1e-12)
+
+
+def test_compiled_ransac_hands_the_sets_with_theta_a_right_angle_to_the_reference_solver() -> None:
+    """A heading of exactly π/2 makes the cubic's t³ term vanish (tan θ = ∞): those sets are solved by the
+    reference solver; both paths still find the exact pose and agree."""
+    from factorloc.vision._kernels import resection_hypotheses
+
+    rng = np.random.default_rng(15)
+    truth = Pose2(0.5, -0.3, math.pi / 2)
+    pts, b = _scene(rng, 20, truth, math.radians(120.0))
+    assert resection_hypotheses(pts, b, np.array([[0, 1, 2], [3, 4, 5]]), 0.01)[3].all()
+    ref, got = rs.ransac(pts, b, 0.01, compiled=False), rs.ransac(pts, b, 0.01)
+    assert np.max(np.abs(_err(got.pose, truth))) < 1e-9
+    assert np.array_equal(ref.inliers, got.inliers) and got.n_inliers == 20
+    assert np.max(np.abs(_err(ref.pose, got.pose))) < 1e-12
