@@ -104,8 +104,8 @@ def warm_up() -> float:
     """Compile (or load) every kernel the pipeline uses, on a small synthetic room; returns the seconds it took.
 
     Runs the ICP step seeded and blind (global search) on a laser scan and on the cut of a
-    3D cloud, which is what the steps call on real data, and the compass's windowed descriptor matching
-    (:mod:`factorloc.vision._kernels`).
+    3D cloud, which is what the steps call on real data, and the compass's kernels (:mod:`factorloc.vision._kernels`:
+    windowed descriptor matching, vote consensus, the resection's RANSAC and refinement).
     """
     import numpy as np
 
@@ -133,11 +133,24 @@ def warm_up() -> float:
     for query in (fl.Query(scan=scan, odometry=odometry), fl.Query(cloud=cloud, odometry=odometry)):
         localizer.localize(query)
         localizer.localize(query, seeded=False)
-    # the compass's seeded descriptor matching (a scan-only localizer never calls it)
+    # the compass's seeded descriptor matching, its vote consensus and its resection (a scan-only localizer never
+    # calls them)
+    from factorloc.vision import keypoints as kp
+    from factorloc.vision import resection as rs
     from factorloc.vision._kernels import two_nearest_in_window
 
     f32 = np.float32
     two_nearest_in_window(np.zeros((2, 3), f32), np.ones(3, f32), np.zeros(3, f32), np.zeros(2, f32), f32(0.5), f32(2 * np.pi))
+    votes = np.array([0.1, 0.11, 0.12, 2.0])
+    kp.vote_consensus(votes, 0.05)
+    kp.competing_mode(votes, 0.1, 0.05)
+    kp.support_rows(votes[None, :], 0.05)
+    truth = fl.Pose2(0.3, -0.2, 0.4)
+    pts = rng.uniform(-4.0, 4.0, (12, 2))
+    d = pts - np.array([truth.x, truth.y])
+    bearings = np.arctan2(d[:, 1], d[:, 0]) - truth.theta
+    fit = rs.ransac(pts, bearings, 0.01)
+    rs.refine(pts, bearings, fit.pose if fit is not None else truth, jackknife=True)
     seconds = time.perf_counter() - t0
     _log.info("factorloc's kernels are ready (%.1f s; cache: %s)", seconds, cache_location())
     return seconds

@@ -323,12 +323,16 @@ def circular_abs_diff(a_rad: np.ndarray, b_rad: np.ndarray, offset_rad: float = 
     return np.abs(x, out=x)
 
 
-def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) -> tuple[float, np.ndarray, int]:
+def vote_consensus(
+    votes_rad: np.ndarray, band_rad: float, iterations: int = 3, *, compiled: bool = True
+) -> tuple[float, np.ndarray, int]:
     """The densest mode of heading votes and its inliers.
 
     Each vote ``θ_i = az_ref − az_query`` counts the votes within ``±band_rad``
     of it (circularly); the vote with most neighbours seeds the mode, which is
     refined as the circular mean of its inliers (``iterations`` times).
+    ``compiled``: in one compiled pass (:func:`factorloc.vision._kernels.vote_mode`, the default); False: the
+    NumPy reference (the same steps; the circular mean summed pairwise instead of in index order).
 
     Returns
     -------
@@ -339,6 +343,11 @@ def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) 
     v = np.asarray(votes_rad, dtype=np.float64)
     if v.size == 0:
         return 0.0, np.zeros(0, dtype=bool), 0
+    if compiled:
+        from factorloc.vision._kernels import vote_mode
+
+        theta, inliers, runner_up = vote_mode(np.ascontiguousarray(v.ravel()), float(band_rad), int(iterations))
+        return float(theta), inliers, int(runner_up)
     support = _support(v, band_rad)
     k = int(np.argmax(support))
     theta = float(v[k])
@@ -357,16 +366,22 @@ def vote_consensus(votes_rad: np.ndarray, band_rad: float, iterations: int = 3) 
     return theta, inliers, runner_up
 
 
-def support_rows(votes_rad: np.ndarray, band_rad: float) -> np.ndarray:
+def support_rows(votes_rad: np.ndarray, band_rad: float, *, compiled: bool = True) -> np.ndarray:
     """:func:`_support` of every row of an m×n array of votes at once (m×n counts).
 
-    The rows are wrapped, each offset by ``20·row`` (rows cannot overlap: a row
-    spans 6π < 20 once extended), sorted once and searched once.
+    Compiled (the default): each row in turn (:func:`factorloc.vision._kernels.circular_support_rows`). NumPy
+    reference (``compiled=False``): the rows are wrapped, each offset by ``20·row`` (rows cannot overlap: a row
+    spans 6π < 20 once extended), sorted once and searched once (the offset rounds each vote to 20·row's ulp).
     """
-    v = np.asarray(wrap_angle(np.asarray(votes_rad, dtype=np.float64)))
+    v = np.asarray(votes_rad, dtype=np.float64)
     m, n = v.shape
     if n == 0:
         return np.zeros((m, 0), dtype=int)
+    if compiled:
+        from factorloc.vision._kernels import circular_support_rows
+
+        return circular_support_rows(np.ascontiguousarray(v), float(band_rad))
+    v = np.asarray(wrap_angle(v))
     s = np.sort(v, axis=1)
     ext = np.concatenate([s - 2.0 * math.pi, s, s + 2.0 * math.pi], axis=1) + 20.0 * np.arange(m)[:, None]
     flat = ext.ravel()
@@ -424,6 +439,8 @@ def competing_mode(votes_rad: np.ndarray, theta_rad: float, band_rad: float) -> 
     far = np.abs(off) > 3.0 * band_rad
     if not far.any():
         return 0, 0.0
-    support = _support(v, band_rad)[far]
+    from factorloc.vision._kernels import circular_support
+
+    support = circular_support(np.ascontiguousarray(v.ravel()), float(band_rad))[far]
     k = int(np.argmax(support))
     return int(support[k]), float(off[far][k])

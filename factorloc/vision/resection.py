@@ -241,6 +241,7 @@ def refine(
     iterations: int = 20,
     jackknife: bool = False,
     groups: np.ndarray | None = None,
+    compiled: bool = True,
 ) -> Resection | None:
     """Gauss–Newton least squares of the angular residuals from ``initial``, with the residual-variance covariance.
 
@@ -266,6 +267,10 @@ def refine(
         With ``jackknife``: integer labels (N,) of bearings that are left out together (delete-a-group jackknife,
         ``(g−1)/g Σ Δ_g Δ_gᵀ``), e.g. points close together in the world, so that two false matches on one
         object cannot hide each other's leverage. None: each bearing is its own group.
+    compiled
+        Run the Gauss–Newton iterations, the covariance and the condition number in the compiled kernel
+        :func:`factorloc.vision._kernels.resection_refine` (the default; the jackknife stays in NumPy); False: the
+        NumPy reference. The same algorithm, rounded differently (sums in index order, a written-out 3×3 LU).
 
     Returns
     -------
@@ -280,6 +285,23 @@ def refine(
     if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0.0):
         raise InputError(f"resection weights must be {n} finite values >= 0, got shape {w.shape}")
     state = np.array([initial.x, initial.y, initial.theta], dtype=np.float64)
+    if compiled:
+        from factorloc.vision._kernels import resection_refine
+
+        ok, state, cov, sigma_hat, condition = resection_refine(
+            pts, b, np.ascontiguousarray(w), np.ones(n, dtype=bool), state, float(sigma_floor_rad), int(iterations)
+        )
+        if not ok:
+            return None
+        sigma_hat, condition = float(sigma_hat), float(condition)
+        if jackknife and n > 3:
+            res, jac, h, _, _ = _normal(pts, b, w, state)
+            cov = _jackknifed(cov, res, jac, h, w, n, groups)
+            if cov is None:
+                return None
+        return Resection(
+            Pose2(float(state[0]), float(state[1]), float(state[2])), cov, np.ones(n, dtype=bool), sigma_hat, condition
+        )
     for _ in range(iterations):
         res, jac, h, g, _ = _normal(pts, b, w, state)
         try:
@@ -308,34 +330,45 @@ def refine(
     condition = float(ev[-1] / ev[0]) if ev[0] > 0.0 else math.inf
     cov = s * s * h_inv
     if jackknife and n > 3:
-        labels = np.arange(n) if groups is None else np.asarray(groups)
-        if labels.shape != (n,):
-            raise InputError(f"resection groups must have one label per bearing ({n}), got shape {labels.shape}")
-        uniq, inverse = np.unique(labels, return_inverse=True)
-        g = len(uniq)
-        if g >= 2:
-            wr = jac * (w * res)[:, None]  # J_iᵀ w_i r_i per bearing
-            gj = np.zeros((g, 3))
-            np.add.at(gj, inverse, wr)
-            outer = w[:, None, None] * jac[:, :, None] * jac[:, None, :]
-            gh = np.zeros((g, 3, 3))
-            np.add.at(gh, inverse, outer)
-            try:
-                delta = np.linalg.solve(h[None] - gh, gj[:, :, None])[:, :, 0]
-            except np.linalg.LinAlgError:
-                delta = np.full((g, 3), np.inf)  # leaving a group out makes the pose undetermined
-            if np.all(np.isfinite(delta)):
-                cov_jk = (g - 1) / g * delta.T @ delta
-                try:
-                    chol = np.linalg.cholesky(cov)
-                    m = np.linalg.solve(chol, np.linalg.solve(chol, cov_jk).T)  # L⁻¹ C_jk L⁻ᵀ
-                    cov = cov * max(1.0, float(np.linalg.eigvalsh(0.5 * (m + m.T))[-1]))
-                except np.linalg.LinAlgError:
-                    return None
-            else:
-                cov = cov * np.inf
+        cov = _jackknifed(cov, res, jac, h, w, n, groups)
+        if cov is None:
+            return None
     pose = Pose2(float(state[0]), float(state[1]), float(wrap_angle(state[2])))
     return Resection(pose, cov, np.ones(n, dtype=bool), sigma_hat, condition)
+
+
+def _jackknifed(
+    cov: np.ndarray, res: np.ndarray, jac: np.ndarray, h: np.ndarray, w: np.ndarray, n: int, groups: np.ndarray | None
+) -> np.ndarray | None:
+    """``cov`` scaled up until it covers the delete-a-group jackknife covariance (see :func:`refine`); None when
+    the covariance is not positive definite."""
+    labels = np.arange(n) if groups is None else np.asarray(groups)
+    if labels.shape != (n,):
+        raise InputError(f"resection groups must have one label per bearing ({n}), got shape {labels.shape}")
+    uniq, inverse = np.unique(labels, return_inverse=True)
+    g = len(uniq)
+    if g >= 2:
+        wr = jac * (w * res)[:, None]  # J_iᵀ w_i r_i per bearing
+        gj = np.zeros((g, 3))
+        np.add.at(gj, inverse, wr)
+        outer = w[:, None, None] * jac[:, :, None] * jac[:, None, :]
+        gh = np.zeros((g, 3, 3))
+        np.add.at(gh, inverse, outer)
+        try:
+            delta = np.linalg.solve(h[None] - gh, gj[:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:
+            delta = np.full((g, 3), np.inf)  # leaving a group out makes the pose undetermined
+        if np.all(np.isfinite(delta)):
+            cov_jk = (g - 1) / g * delta.T @ delta
+            try:
+                chol = np.linalg.cholesky(cov)
+                m = np.linalg.solve(chol, np.linalg.solve(chol, cov_jk).T)  # L⁻¹ C_jk L⁻ᵀ
+                cov = cov * max(1.0, float(np.linalg.eigvalsh(0.5 * (m + m.T))[-1]))
+            except np.linalg.LinAlgError:
+                return None
+        else:
+            cov = cov * np.inf
+    return cov
 
 
 def ransac(
@@ -352,6 +385,7 @@ def ransac(
     distinct_m: float = 0.1,
     distinct_rad: float = math.radians(1.0),
     seed: int = 0,
+    compiled: bool = True,
 ) -> Resection | None:
     """Robust resection: minimal 3-bearing hypotheses (MSAC), the best one refined on its inliers.
 
@@ -383,6 +417,12 @@ def ransac(
         different inlier set lands a hair from a very precise result: the same optimum).
     seed
         Seed of the sampler.
+    compiled
+        Score the hypotheses, refine and search the rivals in the compiled kernels of
+        :mod:`factorloc.vision._kernels` (the default); False runs the NumPy reference of the same algorithm. The
+        two draw the same minimal sets; they differ in rounding only (the compiled cubic is solved in closed form,
+        its 3×3 systems by a written-out LU, its sums in index order), so a pose agrees to ~1e-12 and a decision
+        differs only where a hypothesis's inlier test or cost ties within rounding.
 
     Returns
     -------
@@ -397,12 +437,26 @@ def ransac(
         raise InputError(f"resection threshold_rad must be > 0, got {threshold_rad!r}")
     if not 0.0 < confidence < 1.0:
         raise InputError(f"resection confidence must be in (0, 1), got {confidence!r}")
+    if compiled:
+        return _ransac_compiled(
+            pts,
+            b,
+            threshold_rad,
+            weights,
+            hypotheses,
+            confidence,
+            min_inliers,
+            sigma_floor_rad,
+            rivals,
+            distinct_m,
+            distinct_rad,
+            seed,
+        )
     rng = np.random.default_rng(seed)
     cands, costs, drawn = [], [], 0
     while drawn < hypotheses:  # batches of 64 minimal sets, until enough for `confidence` at the best inlier ratio
         k = min(64, hypotheses - drawn)
-        keys = rng.random((k, n))
-        sets = np.argpartition(keys, 3, axis=1)[:, :3] if n > 3 else np.tile(np.arange(3), (k, 1))
+        sets = _minimal_sets(rng, k, n, False)
         drawn += k
         c = solve_minimal(pts[sets], b[sets]).reshape(-1, 3)
         c = c[np.all(np.isfinite(c), axis=1)]
@@ -429,7 +483,7 @@ def ransac(
             return None
         start = result.pose if result is not None else Pose2(*cand[best])
         w = None if weights is None else np.asarray(weights, dtype=np.float64)[inl]
-        fit = refine(pts[inl], b[inl], start, weights=w, sigma_floor_rad=sigma_floor_rad)
+        fit = refine(pts[inl], b[inl], start, weights=w, sigma_floor_rad=sigma_floor_rad, compiled=False)
         if fit is None:
             return None
         result = fit
@@ -441,6 +495,79 @@ def ransac(
     p = result.pose
     runner_up = _rival_support(pts, b, weights, cand, cost, result, threshold_rad, rivals, min_inliers, distinct_m, distinct_rad)
     return Resection(p, result.covariance, inl, result.residual_sigma_rad, result.condition, runner_up)
+
+
+def _minimal_sets(rng: np.random.Generator, k: int, n: int, compiled: bool) -> np.ndarray:
+    """k random minimal sets of 3 distinct indices of n, the same on both paths: per set, n uniform keys drawn
+    and the indices of the 3 smallest, in ascending order of key (compiled: one pass,
+    :func:`factorloc.vision._kernels.three_smallest`; reference: a stable argsort)."""
+    keys = rng.random((k, n))
+    if n <= 3:
+        return np.tile(np.arange(3), (k, 1))
+    if compiled:
+        from factorloc.vision._kernels import three_smallest
+
+        return three_smallest(keys)
+    return np.argsort(keys, axis=1, kind="stable")[:, :3]
+
+
+def _ransac_compiled(
+    pts: np.ndarray,
+    b: np.ndarray,
+    threshold_rad: float,
+    weights: np.ndarray | None,
+    hypotheses: int,
+    confidence: float,
+    min_inliers: int,
+    sigma_floor_rad: float,
+    rivals: int,
+    distinct_m: float,
+    distinct_rad: float,
+    seed: int,
+) -> Resection | None:
+    """:func:`ransac` with its scoring, refinement and rival search compiled (:mod:`factorloc.vision._kernels`)."""
+    from factorloc.vision import _kernels as kr
+
+    n = len(pts)
+    rng = np.random.default_rng(seed)
+    cands, costs, drawn = [], [], 0
+    thr = float(threshold_rad)
+    while drawn < hypotheses:  # as the reference: batches of 64, the standard count at the best inlier ratio
+        k = min(64, hypotheses - drawn)
+        sets = _minimal_sets(rng, k, n, True)
+        drawn += k
+        c, cost, count, special = kr.resection_hypotheses(pts, b, sets, thr)
+        if np.any(special):  # θ ≈ ±π/2 a root of the cubic (rare): the reference solver, appended after the batch
+            extra = solve_minimal(pts[sets[special]], b[sets[special]]).reshape(-1, 3)
+            extra = extra[np.all(np.isfinite(extra), axis=1)]
+            if len(extra):
+                d = pts[None, :, :] - extra[:, None, :2]
+                r = np.asarray(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - extra[:, 2:3] - b[None, :]))
+                c = np.concatenate([c, extra])
+                cost = np.concatenate([cost, np.minimum(r**2, thr**2).sum(axis=1)])
+                count = max(count, int((np.abs(r) <= thr).sum(axis=1).max()))
+        if not len(c):
+            continue
+        cands.append(c)
+        costs.append(cost)
+        p_good = (count / n) ** 3
+        if p_good >= 1.0 or (p_good > 1e-12 and drawn >= math.log1p(-confidence) / math.log1p(-p_good)):
+            break
+    if not cands:
+        return None
+    cand = cands[0] if len(cands) == 1 else np.concatenate(cands)
+    cost = costs[0] if len(costs) == 1 else np.concatenate(costs)
+    w = np.ones(n) if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
+    if w.shape != (n,) or not np.all(np.isfinite(w)) or np.any(w < 0.0):
+        raise InputError(f"resection weights must be {n} finite values >= 0, got shape {w.shape}")
+    ok, state, cov, inl, sigma_hat, condition, runner_up = kr.resection_best(
+        pts, b, w, cand, cost, thr, int(min_inliers), float(sigma_floor_rad), int(rivals), float(distinct_m), float(distinct_rad)
+    )
+    if not ok:
+        return None
+    return Resection(
+        Pose2(float(state[0]), float(state[1]), float(state[2])), cov, inl, float(sigma_hat), float(condition), int(runner_up)
+    )
 
 
 def _rival_support(
