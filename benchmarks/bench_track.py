@@ -12,6 +12,9 @@ undetermined or two queries went without a reliable estimate, against the top-5 
 heading from Scan Context). MCL's figures count every determined result (it has no flag); CPU time is
 ``time.process_time`` per query, hierarchy runs included, for both.
 
+``recog`` is how many times the tracker ran place recognition (the start-up and each re-localization attempt);
+``--recognize-after 2`` gives the rule before recognition on the first query without support (``recognize_after``).
+
 ``--tour`` uses the multi-place worlds instead (:mod:`factorloc.sim.track`): places in every room of ``--world``
 (``apartment`` or ``office``, a grid of ``--place-spacing`` m in each room) and a robot touring the rooms through the
 doors (:func:`factorloc.sim.track.generate_track`, occlusion on 10 % of the queries, kidnappings to another room).
@@ -55,6 +58,12 @@ def main() -> None:
     ap.add_argument("--tour", action="store_true", help="places in every room and a tour of the rooms (factorloc.sim.track)")
     ap.add_argument("--world", default="apartment", help="with --tour: apartment or office (or a world file)")
     ap.add_argument("--place-spacing", type=float, default=1.5, help="with --tour: grid spacing of the places in a room (m)")
+    ap.add_argument(
+        "--recognize-after",
+        type=int,
+        default=TrackerConfig().recognize_after,
+        help="TrackerConfig.recognize_after (2 = kidnap_after: recognition only when the kidnap rule fires, as before)",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     world = world_by_name(args.world if args.tour else "apartment")
@@ -67,12 +76,12 @@ def main() -> None:
     print(f"{world.name}: {len(place_map)} places ({'rooms' if args.tour else 'grid'})")
     rows = []
     head = f"{'seed':>4} {'n':>4} {'RMSE cm':>8} {'RMSE deg':>8} {'all cm':>7} {'wrong':>6} {'flagged':>7}"
-    head += f" {'kid':>4} {'rec3':>4} {'med ms':>7} {'choice':>7}"
+    head += f" {'kid':>4} {'rec3':>4} {'med ms':>7} {'choice':>7} {'recog':>5}"
     print(head)
     for seed in args.seeds:
         t0 = time.perf_counter()
         sc = _scenario(args, world, place_map, 1000 + seed)
-        tracker = Tracker(place_map, TrackerConfig())
+        tracker = Tracker(place_map, TrackerConfig(recognize_after=args.recognize_after))
         c0 = time.process_time()
         results = [tracker.update(q.query) for q in sc.queries]
         cpu = (time.process_time() - c0) / len(sc.queries)
@@ -80,12 +89,14 @@ def main() -> None:
         n_choice, choice = choice_recall(sc, results, place_map)
         rows.append(
             {"seed": 1000 + seed, **f.to_dict(), "choice_queries": n_choice, "choice_recall": choice, "cpu_s_per_query": cpu}
+            | {"recognitions": tracker.recognitions}
             | {"seconds": time.perf_counter() - t0}
         )
         print(
             f"{1000 + seed:>4} {f.queries:>4} {100 * f.rmse_position_m:>8.2f} {f.rmse_heading_deg:>8.2f} "
             f"{100 * f.rmse_position_all_m:>7.1f} {100 * f.confidently_wrong:>5.1f}% {100 * f.flagged:>6.1f}% "
-            f"{f.kidnaps:>4} {f.recovered_within_3:>4} {1000 * f.median_seconds:>7.1f} {100 * choice:>6.1f}%",
+            f"{f.kidnaps:>4} {f.recovered_within_3:>4} {1000 * f.median_seconds:>7.1f} {100 * choice:>6.1f}% "
+            f"{tracker.recognitions:>5}",
             flush=True,
         )
         if args.mcl:

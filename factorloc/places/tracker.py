@@ -23,6 +23,9 @@
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
   against: one with a σ of metres "agrees" with any pose along a corridor (the case is in ``docs/places.md``).
+  Recognition is already tried after :attr:`TrackerConfig.recognize_after` such queries (default: the first),
+  under the same acceptance rules; when it finds nothing there the query stays ``TRACKING`` (flagged) and the
+  kidnap rule fires as before.
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
@@ -113,6 +116,14 @@ class TrackerConfig:
         Probability of the χ² gate of a place factor against the prediction.
     kidnap_after
         Consecutive queries whose place factors all fail the gate before the tracker re-localizes.
+    recognize_after
+        Consecutive queries with places in view and no consistent place factor after which place recognition is
+        already tried, before the kidnap rule (≤ ``kidnap_after``; equal: only the kidnap rule asks it). Its answer
+        is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that passes the
+        gate against the prediction continues the chain, one that does not starts a new chain, ``RELOCALIZED`` and
+        flagged); when it finds nothing the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap
+        rule fires as before. The default 1 asks it on the very query the evidence runs out (on the kidnapped query
+        itself): fitted on the office and apartment tours, seeds 1001–1006, in ``docs/places.md``.
     lost_sigma_m
         Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
     initial_pose
@@ -137,6 +148,7 @@ class TrackerConfig:
     relocalize_sigma_rad: float = 0.3
     gate_probability: float = 0.999
     kidnap_after: int = 2
+    recognize_after: int = 1
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
@@ -149,7 +161,7 @@ class TrackerConfig:
             raise InputError(f"TrackerConfig.localization must be a factorloc.Config, got {type(self.localization).__name__}")
         if not 0.0 < self.gate_probability < 1.0:
             raise InputError(f"TrackerConfig.gate_probability must be in (0, 1), got {self.gate_probability!r}")
-        for name in ("relocalize_k", "kidnap_after", "relocalize_min_places"):
+        for name in ("relocalize_k", "kidnap_after", "recognize_after", "relocalize_min_places"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InputError(f"TrackerConfig.{name} must be an integer >= 1, got {v!r}")
@@ -157,6 +169,10 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"TrackerConfig.{name} must be a finite number > 0, got {v!r}")
+        if isinstance(self.recognize_after, int) and self.recognize_after > self.kidnap_after:
+            raise InputError(
+                f"TrackerConfig.recognize_after ({self.recognize_after}) must be <= kidnap_after ({self.kidnap_after})"
+            )
         if self.initial_pose is not None and not isinstance(self.initial_pose, Pose2):
             raise InputError(f"TrackerConfig.initial_pose must be a Pose2 or None, got {type(self.initial_pose).__name__}")
 
@@ -234,7 +250,8 @@ class Tracker:
 
     ``Tracker(place_map, config).update(query) -> TrackResult``, one call per query, in time order. Queries carry
     their odometry (``Query.odometry.T_world_robot``, any frame: only the increments are used); a query without
-    odometry breaks the chain (the tracker re-localizes).
+    odometry breaks the chain (the tracker re-localizes). ``chains`` counts the chains started (the start-up
+    included), ``recognitions`` the place-recognition runs (each: top-k places and the hierarchy on each).
     """
 
     def __init__(self, place_map: PlaceMap, config: TrackerConfig | None = None) -> None:
@@ -255,6 +272,7 @@ class Tracker:
         self._last_odometry: Pose2 | None = None
         self._rejected_run = 0
         self.chains = 0
+        self.recognitions = 0
 
     @property
     def recognizer(self) -> PlaceRecognizer:
@@ -332,6 +350,13 @@ class Tracker:
             why = "kidnapping" if kidnap else "lost"
             # lost: the prediction is one the tracker no longer vouches for, never gated against
             return self._relocalize(query, (pred, pred_cov, delta, Q), checks, t0, why, vouched=not lost)
+        if in_view and not accepted and self._rejected_run >= cfg.recognize_after:
+            # tried at once, before the kidnap rule: accepted under the same rules (>= relocalize_min_places agreeing
+            # places; a pose that passes the gate against the prediction continues the chain)
+            why = f"{self._rejected_run} query(ies) without a consistent place factor"
+            tried = self._relocalize(query, (pred, pred_cov, delta, Q), checks, t0, why, tentative=True)
+            if tried is not None:
+                return tried
         accepted, _ = _sharing_query_error(accepted, cfg.share_query_error)
         return self._continue(query, pred, pred_cov, delta, Q, accepted, reports, checks, t0)
 
@@ -409,11 +434,16 @@ class Tracker:
         why: str,
         *,
         vouched: bool = True,
-    ) -> TrackResult:
+        tentative: bool = False,
+    ) -> TrackResult | None:
         """Place recognition; ``prediction`` (pose, covariance, odometry increment and its covariance) is None at
         start-up or after a broken odometry; ``vouched`` is False when the lost rule called this (the prediction's
-        position σ exceeds :attr:`TrackerConfig.lost_sigma_m`): the chain is then never continued."""
+        position σ exceeds :attr:`TrackerConfig.lost_sigma_m`): the chain is then never continued. ``tentative``:
+        called by :attr:`TrackerConfig.recognize_after` before the kidnap rule fired — the same acceptance rules,
+        but a failure returns None (the caller goes on tracking, flagged by ``tracker.supported``) instead of a
+        ``LOST`` result."""
         cfg = self.config
+        self.recognitions += 1
         found = self._recognize(query)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
@@ -432,10 +462,22 @@ class Tracker:
                     note += "; the recognized pose disagrees with the prediction: a new chain"
                 else:
                     note += f"; the prediction (position σ > {cfg.lost_sigma_m:g} m) is not vouched for: a new chain"
+            if tentative:
+                checks.append(
+                    Check.flag(
+                        "tracker.kidnap",
+                        "place factors consistent with the prediction",
+                        False,
+                        note=f"{self._rejected_run} consecutive queries without a consistent place factor",
+                        failure="place recognition on the first such query disagrees with the prediction: kidnapping",
+                    )
+                )
             checks.append(Check.flag("tracker.relocalized", "re-localized by place recognition", True, note=note))
             return self._new_chain(
                 query, factors, found.localization.steps, found.places_used, TrackState.RELOCALIZED, checks, t0
             )
+        if tentative:
+            return None
         checks.append(
             Check.flag(
                 "tracker.relocalized",

@@ -6,6 +6,10 @@ The situation of the office tour, seed 1004, queries 10-13 (docs/places.md), mad
 two queries whose places give nothing (the robot was carried into the corridor), a first re-localization on two
 look-alike corridor places 11 m off with a large along-corridor σ, then a right one. The hierarchy and place
 recognition are replaced by fixed answers (the factors they would give), so the tests check the tracker's rules.
+
+With ``TrackerConfig.recognize_after = 1`` (the default) recognition is already tried on the first query without
+support, under the same acceptance rules: a pose that disagrees with the prediction starts a new chain at once, one
+that agrees continues it, a failure leaves the query ``TRACKING`` (flagged) and the kidnap rule still fires later.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.pipeline import fuse
 from factorloc.places import Place, PlaceMap, Tracker, TrackerConfig, TrackState
@@ -53,8 +58,13 @@ def _recognized(x_m: float, y_m: float, sigma_x_m: float, places: tuple[str, str
     return PlaceLocalization(loc, places, (), ())
 
 
-def _track(monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization], n: int) -> tuple[Tracker, list]:
-    tracker = Tracker(_building(), TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0)))
+def _track(
+    monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization | None], n: int, recognize_after: int = 2
+) -> tuple[Tracker, list]:
+    """``n`` queries from a known start; ``recognize_after = 2`` (= ``kidnap_after``): recognition only when the
+    kidnap rule fires, the rule these tests check; 1 (the default) also on the first query without support."""
+    config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after)
+    tracker = Tracker(_building(), config)
     # the places in view of every prediction give no factor (the robot is elsewhere), recognition gives the answers
     monkeypatch.setattr(tracker.multi, "localize", lambda *a, **k: SimpleNamespace(localization=SimpleNamespace(steps=())))
     queue = list(answers)
@@ -106,3 +116,46 @@ def test_a_refuted_kidnap_suspicion_continues_the_chain_as_tracking(monkeypatch)
     assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
     assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
     assert r.flagged  # the kidnap rule fired on this query: said, not silent
+
+
+def test_recognition_on_the_first_query_without_support_relocalizes_at_once(monkeypatch) -> None:
+    # carried into the corridor after query 0: query 1's places give nothing; recognition on query 1 itself finds two
+    # agreeing corridor places 4 m from the prediction: a new chain there, a query before the kidnap rule would fire
+    right = _recognized(20.0 + STEP_M, 0.0, 0.03, ("c13", "c14"))
+    tracker, results = _track(monkeypatch, [right], 2, recognize_after=1)
+    r = results[1]
+    assert r.state is TrackState.RELOCALIZED and tracker.chains == 2 and tracker.recognitions == 1
+    assert abs(r.pose.x - (20.0 + STEP_M)) < 0.03 and abs(r.pose.y) < 0.03
+    checks = {c.code: c for c in r.checks}
+    assert checks["tracker.supported"].passed is False and checks["tracker.prediction"].passed is False
+    assert checks["tracker.kidnap"].passed is False and checks["tracker.relocalized"].passed is True
+    assert r.flagged  # a jump: said
+    # the same query under the kidnap rule alone (recognize_after = 2): still tracking, recognition not asked yet
+    _, late = _track(monkeypatch, [right], 2, recognize_after=2)
+    assert late[1].state is TrackState.TRACKING and late[1].flagged
+
+
+def test_a_one_off_query_without_support_that_recognition_confirms_continues_the_chain(monkeypatch) -> None:
+    x = 2.0 + STEP_M
+    tracker, results = _track(monkeypatch, [_recognized(x + 0.02, ROOM_Y_M, 0.03, ("r1", "r2"))], 2, recognize_after=1)
+    r = results[1]
+    assert r.state is TrackState.TRACKING and tracker.chains == 1  # no new chain
+    assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
+    assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
+
+
+def test_a_failed_early_recognition_keeps_tracking_and_the_kidnap_rule_still_fires(monkeypatch) -> None:
+    # query 1: recognition finds nothing -> tracking (flagged, unsupported), not lost; query 2: the kidnap rule
+    # fires, recognition finds nothing again -> lost
+    tracker, results = _track(monkeypatch, [None, None], 3, recognize_after=1)
+    assert results[1].state is TrackState.TRACKING and results[1].flagged
+    assert "tracker.relocalized" not in {c.code for c in results[1].checks}
+    assert results[2].state is TrackState.LOST and tracker.chains == 1
+    assert {c.code: c.passed for c in results[2].checks}["tracker.kidnap"] is False
+
+
+def test_recognize_after_must_not_exceed_kidnap_after() -> None:
+    with pytest.raises(InputError, match="recognize_after"):
+        TrackerConfig(recognize_after=3, kidnap_after=2)
+    with pytest.raises(InputError, match="recognize_after"):
+        TrackerConfig(recognize_after=0)
