@@ -23,7 +23,8 @@
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
   against: one with a σ of metres "agrees" with any pose along a corridor (the case is in ``docs/places.md``).
-  Recognition is already tried after :attr:`TrackerConfig.recognize_after` such queries (default: the first),
+  Recognition can already be tried after :attr:`TrackerConfig.recognize_after` such queries (default 2: only
+  when the kidnap rule fires),
   under the same acceptance rules; when it finds nothing there the query stays ``TRACKING`` (flagged) and the
   kidnap rule fires as before.
 
@@ -122,8 +123,9 @@ class TrackerConfig:
         is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that passes the
         gate against the prediction continues the chain, one that does not starts a new chain, ``RELOCALIZED`` and
         flagged); when it finds nothing the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap
-        rule fires as before. The default 1 asks it on the very query the evidence runs out (on the kidnapped query
-        itself): fitted on the office and apartment tours, seeds 1001–1006, in ``docs/places.md``.
+        rule fires as before. 1 asks it on the very query the evidence runs out (on the kidnapped query itself):
+        better on the simulated tours, worse on the real ACES log (aliased corridors re-localized wrongly), so the
+        default is 2 (``docs/places.md``, "Re-localization on the first query without support").
     lost_sigma_m
         Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
     initial_pose
@@ -148,7 +150,7 @@ class TrackerConfig:
     relocalize_sigma_rad: float = 0.3
     gate_probability: float = 0.999
     kidnap_after: int = 2
-    recognize_after: int = 1
+    recognize_after: int = 2
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
