@@ -156,8 +156,7 @@ def find_relations_grid(
     A grid of step s also puts its relations on every grid whose step divides s (5 cm steps are 1 cm steps), so
     the step is the *largest* whose :attr:`~RelationsLattice.grid_share` is within 95 % of the best share of all
     the steps tried; None when no step puts at least ``min_share`` of the relations on its grid beyond chance.
-    (MIT CSAIL: 0.5 cm 0.80, 1 cm 0.87, 2 cm 0.42, 2.5 cm 0.88, 5 cm 0.89, 10 cm 0.47 → 5 cm; Intel and ACES:
-    none above 0.07.)
+    (What it finds on the three laser logs: ``docs/mapping.md``, "How exact the ground truth itself is".)
     """
     if not steps_m:
         raise InputError("steps_m must name at least one grid step")

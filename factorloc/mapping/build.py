@@ -281,14 +281,9 @@ class _Builder:
                 hyp = Hypotheses((Estimate.pose("map", seed_T, covariance=seed_cov),))
                 est = estimate(self.refs[i], self.points[j], hyp, icp)
             self.seconds["icp"] += time.perf_counter() - t0
-            ok = _full_position(est)
-            # a partial answer (e.g. the heading alone) measures no pose: recorded at the seed, unreliable
-            T_ij = Pose2.from_array(est.values) if est.kind == "full" else seed_T
-            used_global = bool(est.diagnostics.get("used_global_init", False))
-            cov = np.array(est.covariance)
-            self.closures.append(Closure(i, j, T_ij, cov, ok, est.reason, est.checks, used_global, seed_T, sigma))
-            if ok:
-                loops.append(_Link("loop", i, j, T_ij, _body_covariance(T_ij, est.covariance)))
+            link = self._record_closure(i, j, est, seed_T, sigma, "proximity")
+            if link is not None:
+                loops.append(link)
         if loops:
             t0 = time.perf_counter()
             g = gtsam.NonlinearFactorGraph()
@@ -298,6 +293,21 @@ class _Builder:
             self.isam.update()
             self.links.extend(loops)
             self.seconds["isam"] += time.perf_counter() - t0
+
+    def _record_closure(self, i: int, j: int, est: Estimate, seed: Pose2, seed_sigma_m: float, proposed_by: str) -> _Link | None:
+        """Keep the ICP step's answer to a proposed closure (i, j) in ``closures``; its loop link when reliable.
+
+        A partial answer (e.g. the heading alone) measures no pose: recorded at the seed, unreliable."""
+        ok = _full_position(est)
+        T_ij = Pose2.from_array(est.values) if est.kind == "full" else seed
+        used_global = bool(est.diagnostics.get("used_global_init", False))
+        self.closures.append(
+            Closure(
+                i, j, T_ij, np.array(est.covariance), ok, est.reason, est.checks, used_global, seed, seed_sigma_m,
+                proposed_by=proposed_by,
+            )
+        )  # fmt: skip
+        return _Link("loop", i, j, T_ij, _body_covariance(T_ij, est.covariance)) if ok else None
 
     def recognize_loops(self) -> None:
         """Loop closures proposed by place recognition (``recognition_every``), verified, added before the batch."""
@@ -334,26 +344,9 @@ class _Builder:
                 hyp = Hypotheses((Estimate.pose("recognition", cand.T_place_query, covariance=seed_cov),))
                 est = estimate(self.refs[i], self.points[j], hyp, self.fallback_cfg)
                 self.seconds["icp"] += time.perf_counter() - t0
-                ok = _full_position(est)
-                T_ij = Pose2.from_array(est.values) if est.kind == "full" else cand.T_place_query
-                used_global = bool(est.diagnostics.get("used_global_init", False))
-                self.closures.append(
-                    Closure(
-                        i,
-                        j,
-                        T_ij,
-                        np.array(est.covariance),
-                        ok,
-                        est.reason,
-                        est.checks,
-                        used_global,
-                        cand.T_place_query,
-                        cfg.recognition_sigma_m,
-                        proposed_by="recognition",
-                    )
-                )
-                if ok:
-                    loops.append(_Link("loop", i, j, T_ij, _body_covariance(T_ij, est.covariance)))
+                link = self._record_closure(i, j, est, cand.T_place_query, cfg.recognition_sigma_m, "recognition")
+                if link is not None:
+                    loops.append(link)
         self.links.extend(loops)
         self.n_recognized = len(loops)
 
