@@ -41,7 +41,9 @@ def main() -> None:
         rel = read_relations(args.data / relf)
         lattice = find_relations_grid(rel, log.odometry)  # None: not gridded (chance hits are not discounted)
         sub = np.arange(0, len(rel), args.every)
-        rows = relations_benchmark(log, Relations(rel.t1_s[sub], rel.t2_s[sub], rel.poses[sub]), methods=("ours", "ours_icp"))
+        rows = relations_benchmark(
+            log, Relations(rel.t1_s[sub], rel.t2_s[sub], rel.poses[sub]), methods=("ours", "ours_icp"), truth_rounding=None
+        )
         for kind in ("local", "loop"):
             vals = []
             for r in rows:

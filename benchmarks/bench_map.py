@@ -37,7 +37,7 @@ from factorloc.datasets.rosbag import LaserLog, ScanTrack, read_laser_log
 from factorloc.evaluation.map_relations import map_relations
 from factorloc.evaluation.relations import Relations, format_table, read_relations, relations_benchmark, summarize
 from factorloc.evaluation.relations_consistency import relations_consistency
-from factorloc.evaluation.relations_lattice import GRID_STEPS_M, SQUARE_MEAN_DISTANCE, find_relations_grid
+from factorloc.evaluation.relations_lattice import GRID_STEPS_M, SQUARE_MEAN_DISTANCE, find_heading_grid, find_relations_grid
 from factorloc.geometry import Pose2
 from factorloc.mapping import MapConfig, build_map
 
@@ -157,7 +157,8 @@ def main() -> None:
     print(
         f"map ({name}, all {m['n']} relations): {m['trans_mean_cm']:.2f} ± {m['trans_std_cm']:.2f} cm / "
         f"{m['rot_mean_deg']:.2f} ± {m['rot_std_deg']:.2f} deg; beyond 3σ of the map's covariance: "
-        f"{100 * m['confidently_wrong_rate']:.2f} %"
+        f"{100 * m['confidently_wrong_rate']:.2f} % (the relations taken as exact: "
+        f"{100 * np.mean([r.diagnostics['beyond_3sigma_exact'] for r in rows]):.2f} %)"
     )
     consistency = relations_consistency(rel)
     print(f"the relations' own consistency: {consistency.summary()}")
@@ -176,6 +177,15 @@ def main() -> None:
     else:
         print(f"the relations against the odometry: {lattice.summary()}")
         _print_grid(result, rel, log, lattice, rows)
+    heading = find_heading_grid(rel, log.odometry)
+    if heading is None:
+        print("the relations' headings against the odometry: no grid")
+    else:
+        print(
+            f"the relations' headings against the odometry: {int(heading.on_lattice.sum())} of {len(rel)} turned by whole "
+            f"{math.degrees(heading.step_rad):g}° steps about {math.degrees(heading.offset_rad):.3f}° "
+            f"(chance {100 * heading.chance_rate:.1f} %)"
+        )
     s = result.stats
     print(
         f"{s['places']} places of {len(log.scans)} scans, {s['scan_factors']} consecutive ICP links, "

@@ -30,7 +30,12 @@ Methods compared side by side in one run, all seeded by the same odometry:
 
 A result is *confidently wrong* when it is reliable and its position error
 exceeds the 3σ ellipse (squared Mahalanobis distance above the 2-DoF χ²
-quantile of 0.9973) or its heading error exceeds 3σθ.
+quantile of 0.9973) or its heading error exceeds 3σθ. Where the relations were
+rounded to a matcher's grid (:func:`~factorloc.evaluation.relations_lattice.truth_rounding`:
+MIT CSAIL's local relations, 5 cm and 0.25°), the rounding's covariance is added
+to the estimate's for that test and for the NEES; the verdict against the
+relation taken as exact is kept in the diagnostics (``confidently_wrong_exact``,
+``icp_nees_position_exact``).
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from scipy.stats import chi2
@@ -50,6 +55,9 @@ from factorloc.errors import DatasetError, InputError
 from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
+from factorloc.evaluation.relations_data import Relations, read_relations
+from factorloc.evaluation.relations_lattice import TruthRounding
+from factorloc.evaluation.relations_lattice import truth_rounding as find_truth_rounding
 from factorloc.evaluation.relations_report import METHODS, RelationResult, format_table, summarize, unrecovered_breakdown
 from factorloc.geometry import Pose2
 from factorloc.odometry_model import OdometryModel
@@ -75,42 +83,6 @@ __all__ = [
 _CHI2_3SIGMA_2DOF = float(chi2.ppf(0.9973002039367398, 2))
 
 
-@dataclass(frozen=True, eq=False)
-class Relations:
-    """Ground-truth relations: (N,) ``t1_s``, ``t2_s`` and (N, 3) ``poses``.
-
-    ``poses[i] = [x_m, y_m, yaw_rad]`` is the robot at ``t2_s[i]`` in the robot frame at ``t1_s[i]``.
-    """
-
-    t1_s: np.ndarray
-    t2_s: np.ndarray
-    poses: np.ndarray
-
-    def __len__(self) -> int:
-        return int(self.t1_s.shape[0])
-
-    def subset(self, every: int = 1, offset: int = 0) -> Relations:
-        """Every ``every``-th relation starting at ``offset`` (a fixed, reproducible subset)."""
-        if every < 1:
-            raise InputError(f"every must be >= 1, got {every!r}")
-        sl = slice(offset, None, every)
-        return Relations(self.t1_s[sl], self.t2_s[sl], self.poses[sl])
-
-
-def read_relations(path: str | Path) -> Relations:
-    """Read a ``.relations`` file: lines ``t1 t2 x y z roll pitch yaw`` (s, m, rad)."""
-    p = Path(path)
-    if not p.is_file():
-        raise DatasetError(f"relations file not found: {p}")
-    try:
-        a = np.loadtxt(p, ndmin=2)
-    except ValueError as exc:
-        raise DatasetError(f"relations file {p} is malformed: {exc}") from exc
-    if a.shape[1] != 8:
-        raise DatasetError(f"relations file {p} must have 8 columns (t1 t2 x y z roll pitch yaw), got {a.shape[1]}")
-    return Relations(a[:, 0].copy(), a[:, 1].copy(), a[:, [2, 3, 7]].copy())
-
-
 def _position_not_measured(est: Estimate) -> bool:
     """A degenerate ICP result: heading-only, or a pose whose position is unknown along a corridor."""
     if est.kind == "heading":
@@ -127,13 +99,17 @@ def _position_error_world(true: Pose2, est: Pose2) -> np.ndarray:
     return np.array([est.x - true.x, est.y - true.y])
 
 
-def _wrong(true: Pose2, est: Pose2, cov: np.ndarray) -> tuple[bool, float]:
+def _wrong(true: Pose2, est: Pose2, cov: np.ndarray, truth_cov: np.ndarray | None = None) -> tuple[bool, float]:
+    """(beyond 3σ in position or heading, squared Mahalanobis position error) of ``est`` against ``true``, with
+    ``cov`` (the estimate's) plus ``truth_cov`` (the relation's rounding, position isotropic; None: exact)."""
+    c = np.asarray(cov, dtype=float)
+    if truth_cov is not None:
+        c = c + truth_cov
     e = _position_error_world(true, est)
-    c = np.asarray(cov)[:2, :2]
-    if not np.all(np.isfinite(c)):
+    if not np.all(np.isfinite(c[:2, :2])):
         return False, math.nan
-    d2 = float(e @ np.linalg.solve(c, e))
-    st = math.sqrt(float(cov[2, 2])) if math.isfinite(float(cov[2, 2])) else math.inf
+    d2 = float(e @ np.linalg.solve(c[:2, :2], e))
+    st = math.sqrt(float(c[2, 2])) if math.isfinite(float(c[2, 2])) else math.inf
     dth = abs(math.remainder(est.theta - true.theta, 2 * math.pi))
     return (d2 > _CHI2_3SIGMA_2DOF) or (dth > 3.0 * st), d2
 
@@ -173,6 +149,7 @@ class _RelationInput:
     seed: Pose2
     distance_m: float
     rotation_rad: float
+    truth_cov: np.ndarray | None = None  # the relation's rounding (3×3), None: exact
 
 
 @dataclass(frozen=True, eq=False)
@@ -223,7 +200,7 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
             est = odometry_estimate(odom, config.odometry)
             dt = time.perf_counter() - t0
             et, er = _errors(true, seed)
-            wrong, d2 = _wrong(true, seed, odom_cov)
+            wrong, d2 = _wrong(true, seed, odom_cov, item.truth_cov)
             out.append(RelationResult(m, i, kind, et, er, est.reliable, est.reliable and wrong, dt, d2))
         elif m == "ours":
             t0 = time.perf_counter()
@@ -235,9 +212,11 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
             icp_seconds = localizer.prepare_seconds.get("icp", 0.0) + icp_rep.seconds
             reliable = any(r.status is StepStatus.FUSED for r in loc.steps) and loc.determined
             et, er = _errors(true, loc.pose)
-            wrong, d2 = _wrong(true, loc.pose, loc.covariance) if reliable else (False, math.nan)
+            wrong, d2 = _wrong(true, loc.pose, loc.covariance, item.truth_cov) if reliable else (False, math.nan)
             icp_est = icp_rep.estimate
             diag = {
+                "truth_rounded": item.truth_cov is not None,
+                "confidently_wrong_exact": reliable and _wrong(true, loc.pose, loc.covariance)[0],
                 "icp_status": icp_rep.status.value,
                 "icp_reason": icp_rep.reason,
                 "icp_failed_checks": ()
@@ -264,10 +243,12 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
             if no_full_position:
                 diag.update(icp_no_full_position=True)
             elif icp_est is not None:
-                e = _position_error_world(true, T_icp)
-                nees_icp = float(e @ np.linalg.solve(icp_est.covariance[:2, :2], e))
+                wrong_i, nees_icp = _wrong(true, T_icp, icp_est.covariance, item.truth_cov)
+                wrong_exact_i, nees_exact = _wrong(true, T_icp, icp_est.covariance)
                 diag.update(
                     icp_nees_position=nees_icp,
+                    icp_nees_position_exact=nees_exact,
+                    icp_confidently_wrong_exact=icp_est.reliable and wrong_exact_i,
                     icp_covariance_position=icp_est.covariance[:2, :2].tolist(),
                     icp_sigma_theta_rad=icp_est.sigma("theta"),
                     **{
@@ -284,7 +265,6 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
                 elif icp_est is None:
                     out.append(RelationResult("ours_icp", i, kind, math.inf, math.inf, False, False, icp_seconds))
                 else:
-                    wrong_i, _ = _wrong(true, T_icp, icp_est.covariance)
                     out.append(
                         RelationResult(
                             "ours_icp",
@@ -316,7 +296,7 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
             est = res.T_target_source
             reliable = res.fitness >= icp_cfg.reliability.min_fitness
             et, er = _errors(true, est)
-            wrong, d2 = _wrong(true, est, odom_cov)
+            wrong, d2 = _wrong(true, est, odom_cov, item.truth_cov)
             out.append(RelationResult(m, i, kind, et, er, reliable, reliable and wrong, dt, d2, False, {"fitness": res.fitness}))
     return out
 
@@ -335,6 +315,7 @@ def relations_benchmark(
     chunk_size: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     on_failure: Callable[[int, str], None] | None = None,
+    truth_rounding: TruthRounding | Literal["auto"] | None = "auto",
 ) -> list[RelationResult]:
     """Run every method of ``methods`` on every relation; one :class:`RelationResult` per (method, relation).
 
@@ -366,6 +347,12 @@ def relations_benchmark(
         on_failure
             Called as ``on_failure(relation_index, error)`` for a relation that raised (its rows are left out);
             without it, such a relation raises a :class:`~factorloc.errors.DatasetError` once the batch is done.
+        truth_rounding
+            The relations' own rounding to a matcher's grid, added to every method's covariance when judging
+            (confidently wrong, NEES): ``"auto"`` (default) finds it from the relations and the odometry
+            (:func:`~factorloc.evaluation.relations_lattice.truth_rounding`; none on a log whose relations are not
+            gridded), None takes the relations as exact, or a given
+            :class:`~factorloc.evaluation.relations_lattice.TruthRounding` of these relations.
 
         Notes
         -----
@@ -380,6 +367,13 @@ def relations_benchmark(
     if bad:
         raise InputError(f"unknown method(s) {bad}; known: {list(METHODS)}")
     config = config or relations_config()
+    if truth_rounding == "auto":
+        truth_rounding = find_truth_rounding(relations, log.odometry)
+    elif truth_rounding is not None and not isinstance(truth_rounding, TruthRounding):
+        raise InputError(f"truth_rounding must be 'auto', None or a TruthRounding, got {truth_rounding!r}")
+    rounded = None if truth_rounding is None else truth_rounding.rounded()
+    if rounded is not None and len(rounded) not in (0, len(relations)):
+        raise InputError(f"truth_rounding is for {len(rounded)} relations, not these {len(relations)}")
     batch = _RelationsBatch(
         tuple(methods), config, float(local_threshold_m), float(open3d_max_correspondence_m), odometry_model or OdometryModel()
     )
@@ -398,6 +392,7 @@ def relations_benchmark(
                 log.odometry.between(t1, t2),
                 dist,
                 rot,
+                None if rounded is None or not len(rounded) or not rounded[i] else truth_rounding.covariance(i),
             )
         )
     ex = executor if executor is not None else SerialExecutor()

@@ -15,6 +15,15 @@ the lattice): no estimate of the true motion scores below it on the benchmark's 
 Chance: a norm lands within ``tolerance_m`` of some lattice norm by accident at a rate that depends on the norms;
 :attr:`RelationsLattice.chance_rate` is the rate for the same norms each moved by a uniform offset in
 ``[−s/2, s/2]`` (seeded, deterministic), what a log without a grid shows.
+
+The heading has its own test (:func:`heading_lattice`, :func:`find_heading_grid`): ``θ_relation − θ_odometry`` on
+``offset + k·h`` for a heading step ``h`` (the matcher's angular step; the offset, one per log, is the circular
+mean of the residuals modulo ``h``).
+
+:func:`truth_rounding` turns what both tests find into a covariance per relation: a truth rounded to a grid cell
+is off by a uniform error over the cell, variance ``s²/12`` per axis (``h²/12`` in heading). Judging an estimate
+against such a relation with its own covariance alone counts the rounding as the estimator's error; the relations
+benchmark adds this covariance (:func:`~factorloc.evaluation.relations.relations_benchmark`, ``truth_rounding``).
 """
 
 from __future__ import annotations
@@ -26,12 +35,31 @@ import numpy as np
 
 from factorloc.datasets.rosbag import OdometryTrack
 from factorloc.errors import InputError
-from factorloc.evaluation.relations import Relations
+from factorloc.evaluation.relations_data import Relations
 
-__all__ = ["GRID_STEPS_M", "SQUARE_MEAN_DISTANCE", "RelationsLattice", "find_relations_grid", "relations_lattice"]
+__all__ = [
+    "GRID_STEPS_M",
+    "HEADING_GRID_STEPS_RAD",
+    "SQUARE_MEAN_DISTANCE",
+    "HeadingLattice",
+    "RelationsLattice",
+    "TruthRounding",
+    "find_heading_grid",
+    "find_relations_grid",
+    "heading_lattice",
+    "relations_lattice",
+    "truth_rounding",
+]
 
 #: The grid steps :func:`find_relations_grid` tries (m).
 GRID_STEPS_M = (0.005, 0.01, 0.02, 0.025, 0.05, 0.1)
+
+#: The heading steps :func:`find_heading_grid` tries (rad): 0.1°, 0.25°, 0.5°, 1°.
+HEADING_GRID_STEPS_RAD = tuple(math.radians(d) for d in (0.1, 0.25, 0.5, 1.0))
+
+#: How near ``offset + k·h`` a heading residual must lie (rad): 0.002°, 3.5e-5 rad; the relations files give
+#: 5 decimals (1e-5 rad).
+HEADING_TOLERANCE_RAD = math.radians(0.002)
 
 #: Mean distance of a uniform point of the unit square from its centre, (√2 + asinh 1) / 6.
 SQUARE_MEAN_DISTANCE = (math.sqrt(2.0) + math.asinh(1.0)) / 6.0
@@ -126,15 +154,8 @@ def relations_lattice(
             raise InputError(f"{name} must be a finite number > 0, got {v!r}")
     if tolerance_m >= 0.5 * step_m:
         raise InputError(f"tolerance_m ({tolerance_m}) must be below half the step ({step_m})")
-    if not isinstance(relations, Relations) or len(relations) == 0:
-        raise InputError("relations must be a non-empty Relations")
-    if not isinstance(odometry, OdometryTrack):
-        raise InputError(f"odometry must be an OdometryTrack, got {type(odometry).__name__}")
-    lo, hi = float(odometry.stamps_s[0]), float(odometry.stamps_s[-1])
-    norms = np.empty(len(relations))
-    for k, (t1, t2, P) in enumerate(zip(relations.t1_s, relations.t2_s, relations.poses, strict=True)):
-        D = odometry.between(float(np.clip(t1, lo, hi)), float(np.clip(t2, lo, hi)))
-        norms[k] = math.hypot(float(P[0]) - D.x, float(P[1]) - D.y)
+    odo = _relative_odometry(relations, odometry)
+    norms = np.hypot(relations.poses[:, 0] - odo[:, 0], relations.poses[:, 1] - odo[:, 1])
     lattice = _lattice_norms(step_m, max_norm_m)
     on = _near(norms, lattice, tolerance_m) & (norms <= max_norm_m)
     rng = np.random.default_rng(0)
@@ -165,3 +186,146 @@ def find_relations_grid(
     if not best >= min_share:
         return None
     return max((t for t in tried if t.grid_share >= 0.95 * best), key=lambda t: t.step_m)
+
+
+@dataclass(frozen=True, eq=False)
+class HeadingLattice:
+    """The heading lattice test of one log's relations (see the module docstring).
+
+    ``residuals_rad`` (N,) is ``θ_relation − θ_odometry`` wrapped to (−π, π], ``on_lattice`` (N,) whether it lies
+    within ``tolerance_rad`` of ``offset_rad + k·step_rad``; ``chance_rate`` is ``2·tolerance/step``, the rate of
+    a residual uniform over a step.
+    """
+
+    step_rad: float
+    offset_rad: float
+    tolerance_rad: float
+    residuals_rad: np.ndarray
+    on_lattice: np.ndarray
+
+    @property
+    def chance_rate(self) -> float:
+        return 2.0 * self.tolerance_rad / self.step_rad
+
+    @property
+    def rate(self) -> float:
+        """Share of the relations on the lattice."""
+        return float(self.on_lattice.mean()) if len(self.on_lattice) else math.nan
+
+    @property
+    def grid_share(self) -> float:
+        """As :attr:`RelationsLattice.grid_share`: the share made on the grid, the chance hits removed."""
+        if not len(self.on_lattice):
+            return math.nan
+        return float(np.clip((self.rate - self.chance_rate) / (1.0 - self.chance_rate), 0.0, 1.0))
+
+
+def _relative_odometry(relations: Relations, odometry: OdometryTrack) -> np.ndarray:
+    """(N, 3) the odometry's ``[x, y, θ]`` of each relation (robot frame at t1; stamps clamped to its span)."""
+    if not isinstance(relations, Relations) or len(relations) == 0:
+        raise InputError("relations must be a non-empty Relations")
+    if not isinstance(odometry, OdometryTrack):
+        raise InputError(f"odometry must be an OdometryTrack, got {type(odometry).__name__}")
+    lo, hi = float(odometry.stamps_s[0]), float(odometry.stamps_s[-1])
+    out = np.empty((len(relations), 3))
+    for k, (t1, t2) in enumerate(zip(relations.t1_s, relations.t2_s, strict=True)):
+        D = odometry.between(float(np.clip(t1, lo, hi)), float(np.clip(t2, lo, hi)))
+        out[k] = (D.x, D.y, D.theta)
+    return out
+
+
+def heading_lattice(
+    relations: Relations,
+    odometry: OdometryTrack,
+    *,
+    step_rad: float,
+    tolerance_rad: float = HEADING_TOLERANCE_RAD,
+) -> HeadingLattice:
+    """Test whether the headings of ``relations`` are the odometry's turned by whole steps of ``step_rad``.
+
+    The offset is the circular mean of the residuals modulo the step (closed form, no search).
+
+    Raises
+    ------
+    InputError
+        On a non-positive or non-finite step or tolerance, a tolerance of half a step or more, or no relation.
+    """
+    for name, v in (("step_rad", step_rad), ("tolerance_rad", tolerance_rad)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
+            raise InputError(f"{name} must be a finite number > 0, got {v!r}")
+    if tolerance_rad >= 0.5 * step_rad:
+        raise InputError(f"tolerance_rad ({tolerance_rad}) must be below half the step ({step_rad})")
+    odo = _relative_odometry(relations, odometry)
+    res = np.remainder(relations.poses[:, 2] - odo[:, 2] + math.pi, 2.0 * math.pi) - math.pi
+    phase = np.exp(1j * (2.0 * math.pi / step_rad) * res)
+    offset = float(np.angle(phase.mean())) * step_rad / (2.0 * math.pi)
+    dev = np.remainder(res - offset + 0.5 * step_rad, step_rad) - 0.5 * step_rad
+    return HeadingLattice(float(step_rad), offset, float(tolerance_rad), res, np.abs(dev) <= tolerance_rad)
+
+
+def find_heading_grid(
+    relations: Relations,
+    odometry: OdometryTrack,
+    *,
+    steps_rad: tuple[float, ...] = HEADING_GRID_STEPS_RAD,
+    min_share: float = 0.5,
+) -> HeadingLattice | None:
+    """The heading grid of a log's relations, if any: as :func:`find_relations_grid`, over ``steps_rad``."""
+    if not steps_rad:
+        raise InputError("steps_rad must name at least one heading step")
+    tried = [
+        heading_lattice(relations, odometry, step_rad=h, tolerance_rad=min(HEADING_TOLERANCE_RAD, 0.4 * h)) for h in steps_rad
+    ]
+    best = max(t.grid_share for t in tried)
+    if not best >= min_share:
+        return None
+    return max((t for t in tried if t.grid_share >= 0.95 * best), key=lambda t: t.step_rad)
+
+
+@dataclass(frozen=True, eq=False)
+class TruthRounding:
+    """The ground truth's own error per relation where it was rounded to a grid (see the module docstring).
+
+    ``translation`` / ``heading`` are the grids found (None: not rounded); a relation on a grid is off by a uniform
+    error over its cell: variance ``s²/12`` per position axis, ``h²/12`` in heading.
+    """
+
+    translation: RelationsLattice | None
+    heading: HeadingLattice | None
+
+    @classmethod
+    def none(cls) -> TruthRounding:
+        """Relations taken as exact."""
+        return cls(None, None)
+
+    def covariance(self, index: int) -> np.ndarray:
+        """The 3×3 covariance (m², rad²; isotropic in position, so in any frame) of relation ``index``'s rounding."""
+        vp = self.translation.step_m**2 / 12.0 if self.translation is not None and self.translation.on_lattice[index] else 0.0
+        vh = self.heading.step_rad**2 / 12.0 if self.heading is not None and self.heading.on_lattice[index] else 0.0
+        return np.diag([vp, vp, vh])
+
+    def rounded(self) -> np.ndarray:
+        """(N,) whether each relation is on either grid (empty when neither grid was found)."""
+        grids = [g.on_lattice for g in (self.translation, self.heading) if g is not None]
+        if not grids:
+            return np.zeros(0, dtype=bool)
+        return np.logical_or.reduce(grids)
+
+    def summary(self) -> str:
+        """One line for a report."""
+        if self.translation is None and self.heading is None:
+            return "ground truth taken as exact (no grid found in its relations)"
+        parts = []
+        if self.translation is not None:
+            t = self.translation
+            parts.append(f"translation on a {100 * t.step_m:g} cm grid ({int(t.on_lattice.sum())} of {len(t.on_lattice)})")
+        if self.heading is not None:
+            h = self.heading
+            parts.append(f"heading on a {math.degrees(h.step_rad):g}° grid ({int(h.on_lattice.sum())} of {len(h.on_lattice)})")
+        return "ground truth rounded: " + ", ".join(parts) + "; judged with the rounding's covariance added"
+
+
+def truth_rounding(relations: Relations, odometry: OdometryTrack) -> TruthRounding:
+    """The rounding of a log's relations to the grid of the matcher that made them (:func:`find_relations_grid`,
+    :func:`find_heading_grid`; :meth:`TruthRounding.none` when neither finds one)."""
+    return TruthRounding(find_relations_grid(relations, odometry), find_heading_grid(relations, odometry))

@@ -11,7 +11,15 @@ import pytest
 from factorloc.datasets.rosbag import OdometryTrack
 from factorloc.errors import InputError
 from factorloc.evaluation.relations import Relations
-from factorloc.evaluation.relations_lattice import SQUARE_MEAN_DISTANCE, find_relations_grid, relations_lattice
+from factorloc.evaluation.relations_lattice import (
+    SQUARE_MEAN_DISTANCE,
+    TruthRounding,
+    find_heading_grid,
+    find_relations_grid,
+    heading_lattice,
+    relations_lattice,
+    truth_rounding,
+)
 from factorloc.geometry import Pose2
 
 
@@ -23,14 +31,14 @@ def _odometry(n: int = 400) -> OdometryTrack:
     return OdometryTrack(t, np.column_stack([xy, th]))
 
 
-def _relations(odom: OdometryTrack, offset) -> Relations:  # noqa: ANN001 - offset(k) -> (dx, dy)
+def _relations(odom: OdometryTrack, offset, turn=lambda k: 0.01) -> Relations:  # noqa: ANN001 - (k) -> (dx, dy), (k) -> dθ
     t1 = odom.stamps_s[:-3]
     t2 = odom.stamps_s[3:]
     poses = []
     for k, (a, b) in enumerate(zip(t1, t2, strict=True)):
         D = odom.between(float(a), float(b))
         dx, dy = offset(k)
-        poses.append([D.x + dx, D.y + dy, D.theta + 0.01])
+        poses.append([D.x + dx, D.y + dy, D.theta + turn(k)])
     return Relations(t1, t2, np.array(poses))
 
 
@@ -97,3 +105,48 @@ def test_mit_csails_relations_are_its_odometry_on_a_5_cm_grid(shared_data: Path)
         read_relations(laser / "mit-csail.relations"), read_laser_log(laser / "mit-csail.sort.bag").odometry
     )
     assert found is not None and found.step_m == 0.05
+    mit_rel, mit_odom = read_relations(laser / "mit-csail.relations"), read_laser_log(laser / "mit-csail.sort.bag").odometry
+    heading = find_heading_grid(mit_rel, mit_odom)  # its headings too: 1,043 of 1,172 on 0.25° steps
+    assert heading is not None and heading.step_rad == pytest.approx(math.radians(0.25)) and heading.rate > 0.85
+    assert truth_rounding(mit_rel, mit_odom).rounded().sum() >= 1040
+
+
+def test_headings_turned_by_whole_matcher_steps_are_found_with_their_offset() -> None:
+    odom = _odometry()
+    rng = np.random.default_rng(7)
+    k = rng.integers(-8, 9, len(odom))
+    h, offset = math.radians(0.25), math.radians(0.1)  # MIT CSAIL's: 0.25° steps about a 0.1° offset
+    rel = _relations(odom, lambda i: (0.0, 0.0), lambda i: offset + h * k[i])
+    lat = heading_lattice(rel, odom, step_rad=h)
+    assert lat.rate == 1.0 and lat.offset_rad == pytest.approx(offset, abs=1e-9) and lat.chance_rate < 0.02
+    found = find_heading_grid(rel, odom)
+    assert found is not None and found.step_rad == pytest.approx(h)
+    noise = rng.normal(0.0, math.radians(0.5), len(odom))
+    assert find_heading_grid(_relations(odom, lambda i: (0.0, 0.0), lambda i: noise[i]), odom) is None
+    with pytest.raises(InputError, match="half the step"):
+        heading_lattice(rel, odom, step_rad=5e-5)
+
+
+def test_the_truths_rounding_is_a_uniform_cells_covariance_on_the_grid_only() -> None:
+    odom = _odometry()
+    rng = np.random.default_rng(8)
+    steps = rng.integers(-2, 3, (len(odom), 2))
+    off = rng.normal(0.0, 0.02, (len(odom), 2))
+    gridded = np.arange(len(odom)) % 4 != 0  # a quarter made another way (loops, say)
+    h = math.radians(0.25)
+    turn = np.where(gridded, h * rng.integers(-4, 5, len(odom)), rng.normal(0.0, 0.01, len(odom)))
+    rel = _relations(odom, lambda i: tuple(0.05 * steps[i]) if gridded[i] else tuple(off[i]), lambda i: turn[i])
+    tr = truth_rounding(rel, odom)
+    assert tr.translation is not None and tr.translation.step_m == 0.05
+    assert tr.heading is not None and tr.heading.step_rad == pytest.approx(h)
+    on = tr.translation.on_lattice & tr.heading.on_lattice
+    off_both = ~tr.translation.on_lattice & ~tr.heading.on_lattice
+    i_on, i_off = int(np.nonzero(on)[0][0]), int(np.nonzero(off_both)[0][0])
+    np.testing.assert_allclose(np.diag(tr.covariance(i_on)), [0.05**2 / 12.0, 0.05**2 / 12.0, h**2 / 12.0], rtol=1e-12)
+    np.testing.assert_array_equal(tr.covariance(i_off), np.zeros((3, 3)))
+    assert tr.rounded().sum() == pytest.approx(gridded.sum(), abs=0.05 * len(odom))  # chance hits aside
+    # a uniform error over the 5 cm cell has that variance
+    u = np.random.default_rng(9).uniform(-0.025, 0.025, 400_000)
+    assert float(u.var()) == pytest.approx(0.05**2 / 12.0, rel=0.01)
+    assert "5 cm grid" in tr.summary()
+    assert TruthRounding.none().rounded().size == 0 and "exact" in TruthRounding.none().summary()
