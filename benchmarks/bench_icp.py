@@ -105,12 +105,13 @@ def _ablated(config: Config, what: str) -> Config:
 def candidates() -> dict[str, Candidate]:
     """The candidate settings ``--folds`` compares (the library default first). Names: ``floor<mm>`` a position
     floor (heading floor 0.23°), ``k<ratio>`` the correlated-error ratio, ``fitted`` an inflation fitted on the
-    training logs, ``weak_prior_on`` / ``weak_prior_off`` the ICP's weak prior (``global_init.weak_prior``),
+    training logs, ``_i<factor>`` an inflation of the pair's two terms (the floors kept),
+    ``weak_prior_on`` / ``weak_prior_off`` the ICP's weak prior (``global_init.weak_prior``),
     ``heading<limit>`` the heading half of the constraint rule at that limit (``reliability.min_heading_strength``;
     ``heading0``: off)."""
     base = relations_config()
     out = {"default": Candidate("default", base), "fitted": Candidate("fitted", base, _fit_inflation)}
-    for floor_mm in (7.5, 10, 12.5, 15, 20):
+    for floor_mm in (2.5, 5, 7.5, 10, 12.5, 15, 20):
         for k in (0.5, 0.75):
             for p in (1.0, 1.25, 1.5):
                 name = f"floor{floor_mm:g}" + ("" if k == 0.75 else f"_k{k}") + ("" if p == 1.0 else f"_p{p}")
@@ -118,6 +119,9 @@ def candidates() -> dict[str, Candidate]:
                     base, sigma_floor_m=floor_mm / 1000, sigma_floor_rad=0.004, bias_rmse_ratio=k, weak_exponent=p
                 )
                 out[name] = Candidate(name, cfg)
+                for inflation in (0.5, 0.65, 0.8):  # the pair's two terms scaled, the floors kept
+                    cfg_i = _with_covariance(cfg, inflation=inflation)
+                    out[f"{name}_i{inflation:g}"] = Candidate(f"{name}_i{inflation:g}", cfg_i)
     for what in ABLATIONS:
         out[f"-{what}"] = Candidate(f"-{what}", _ablated(base, what))
     for on in (True, False):  # the weak prior (global_init.weak_prior) switched on and off

@@ -147,7 +147,7 @@ class CovarianceConfig:
     bias_heading_scale: float = 0.85
     bias_fitness_ref: float = 0.0
     weak_exponent: float = 1.25
-    sigma_floor_m: float = 0.01
+    sigma_floor_m: float = 0.0075
     sigma_floor_rad: float = 0.004
     chamfer_scale: float = 0.5
 
