@@ -182,10 +182,16 @@ def find_relations_grid(
     if not steps_m:
         raise InputError("steps_m must name at least one grid step")
     tried = [relations_lattice(relations, odometry, step_m=s, tolerance_m=min(tolerance_m, 0.4 * s)) for s in steps_m]
+    return _largest_near_best(tried, [t.step_m for t in tried], min_share)
+
+
+def _largest_near_best(tried: list, steps: list[float], min_share: float):  # noqa: ANN202 - a lattice of ``tried``
+    """Of the lattices ``tried`` (steps ``steps``), the one of the largest step whose grid share is within 95 % of
+    the best; None when the best is below ``min_share``."""
     best = max(t.grid_share for t in tried)
     if not best >= min_share:
         return None
-    return max((t for t in tried if t.grid_share >= 0.95 * best), key=lambda t: t.step_m)
+    return max((t for t in zip(steps, tried, strict=True) if t[1].grid_share >= 0.95 * best), key=lambda t: t[0])[1]
 
 
 @dataclass(frozen=True, eq=False)
@@ -276,10 +282,7 @@ def find_heading_grid(
     tried = [
         heading_lattice(relations, odometry, step_rad=h, tolerance_rad=min(HEADING_TOLERANCE_RAD, 0.4 * h)) for h in steps_rad
     ]
-    best = max(t.grid_share for t in tried)
-    if not best >= min_share:
-        return None
-    return max((t for t in tried if t.grid_share >= 0.95 * best), key=lambda t: t.step_rad)
+    return _largest_near_best(tried, [t.step_rad for t in tried], min_share)
 
 
 @dataclass(frozen=True, eq=False)
