@@ -82,7 +82,7 @@ def _with(obj: object, dotted: str, value: object) -> object:
     return replace(obj, **{head: _with(getattr(obj, head), rest, value) if rest else value})
 
 
-def _config(items: list[str], kind: type = MapConfig) -> object:
+def config_from_overrides(items: list[str], kind: type = MapConfig) -> object:
     """The ``kind`` config (MapConfig, TrackerConfig) of ``--set`` / ``--track-set`` overrides (plain and dotted
     names)."""
     pairs = _overrides(items)
@@ -148,12 +148,12 @@ def main() -> None:
     log = read_laser_log(args.data / f"{name}.sort.bag")
     rel = read_relations(args.data / f"{name}.relations")
     log, rel = _prefix(log, rel, args.max_scans)
-    config = _config(args.set)
+    config = config_from_overrides(args.set)
     if args.track_every is not None:
         variants = ["local", "marginal", "none"] if args.place_covariance == "all" else [args.place_covariance]
         from factorloc.places import TrackerConfig
 
-        tracker_config = _config(args.track_set, TrackerConfig)
+        tracker_config = config_from_overrides(args.track_set, TrackerConfig)
         print(f"tracker settings: {', '.join(args.track_set) or 'defaults'}")
         _track(log, rel, config, tracker_config, args.track_every, name, args.json, variants)
         return
