@@ -141,6 +141,12 @@ class TrackerConfig:
     confirm_min_places
         How many of the recognized pose's places in view must give a factor passing the gate against it on the next
         query for ``confirm_recognition`` to confirm it.
+    refuse_ambiguous
+        A recognition whose dropped factors agree among themselves on a second pose (at least
+        ``relocalize_min_places`` places: ``tracker.unique``) starts no chain: the majority of a handful of places is
+        no evidence between the two readings of a point-symmetric room or an aliased corridor. The tracker stays
+        ``LOST`` (or, for the early recognition, ``TRACKING`` flagged) and tries again on the next query. A
+        recognized pose that passes the gate against a vouched-for prediction is not refused (the prediction decides).
     lost_sigma_m
         Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
     initial_pose
@@ -167,6 +173,7 @@ class TrackerConfig:
     kidnap_after: int = 2
     recognize_after: int = 2
     confirm_recognition: bool = True
+    refuse_ambiguous: bool = True
     confirm_min_places: int = 1
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
@@ -554,6 +561,10 @@ class Tracker:
         cfg = self.config
         self.recognitions += 1
         found = self._recognize(query)
+        unique = None
+        if found is not None and len(found.places_used) >= cfg.relocalize_min_places and cfg.refuse_ambiguous:
+            unique = self._unique_check(found)
+            checks.append(unique)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
             factors, n = _sharing_query_error(factors, cfg.share_query_error)
@@ -568,6 +579,8 @@ class Tracker:
                     if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
                         self._rejected_run = 0
                         return self._continue(query, pred, pred_cov, delta, Q, factors, found.localization.steps, checks, t0)
+                    if unique is not None and not unique.passed:
+                        return self._refused(query, prediction, checks, t0, why, tentative)
                     if tentative and cfg.confirm_recognition:
                         # an early recognition that disagrees: held until the next query confirms or refutes it
                         self._candidate = _Candidate(
@@ -590,6 +603,8 @@ class Tracker:
                     note += "; the recognized pose disagrees with the prediction: a new chain"
                 else:
                     note += f"; the prediction (position σ > {cfg.lost_sigma_m:g} m) is not vouched for: a new chain"
+            if unique is not None and not unique.passed:
+                return self._refused(query, prediction, checks, t0, why, tentative)
             if tentative:
                 checks.append(
                     Check.flag(
@@ -604,6 +619,21 @@ class Tracker:
             return self._new_chain(
                 query, factors, found.localization.steps, found.places_used, TrackState.RELOCALIZED, checks, t0
             )
+        return self._refused(query, prediction, checks, t0, why, tentative)
+
+    def _refused(
+        self,
+        query: Query,
+        prediction: tuple[Pose2, np.ndarray, Pose2, np.ndarray] | None,
+        checks: list[Check],
+        t0: float,
+        why: str,
+        tentative: bool,
+    ) -> TrackResult | None:
+        """Recognition gave no pose to start a chain from (too few agreeing places, or an ambiguous answer): None
+        when ``tentative`` (the caller goes on tracking), else ``LOST`` — dead reckoning from the prediction, or no
+        pose at all without one."""
+        cfg = self.config
         if tentative:
             return None
         checks.append(
@@ -612,7 +642,7 @@ class Tracker:
                 "re-localized by place recognition",
                 False,
                 note=why,
-                failure=f"fewer than {cfg.relocalize_min_places} recognized places gave a consistent pose: lost",
+                failure=f"no {cfg.relocalize_min_places} recognized places gave one consistent, unambiguous pose: lost",
             )
         )
         if prediction is None:  # nothing to dead-reckon from
@@ -628,6 +658,30 @@ class Tracker:
         values.insert(k, pred.to_gtsam())
         pose, cov = self._solve(graph, values, k)
         return self._result(query, TrackState.LOST, pose, cov, (), (), checks, pred, t0)
+
+    def _unique_check(self, found: PlaceLocalization) -> Check:
+        """``tracker.unique``: the recognized places whose factors the consistency gate dropped must not agree on a
+        second pose among themselves (at least ``relocalize_min_places`` places again, fused by the same gate): a
+        rival of that support is the other reading of a symmetric or aliased building, and the count of places is
+        no evidence for either."""
+        cfg = self.config
+        rivals = [r.estimate for r in found.localization.steps if r.status is StepStatus.INCONSISTENT and r.estimate is not None]
+        n_rival, where = 0, ""
+        if len({split_step_name(e.step)[1] for e in rivals}) >= cfg.relocalize_min_places:
+            alt = fuse(rivals, gating=cfg.localization.gating)
+            if alt.determined:
+                places = {split_step_name(r.name)[1] for r in alt.steps if r.status is StepStatus.FUSED}
+                n_rival = len(places - {None})
+                d = math.hypot(alt.pose.x - found.pose.x, alt.pose.y - found.pose.y)
+                dth = math.degrees(math.remainder(alt.pose.theta - found.pose.theta, 2 * math.pi))
+                where = f"; the rival pose {d:.2f} m and {dth:.0f}° from the recognized one, on {sorted(places - {None})}"
+        return Check.at_most(
+            "tracker.unique",
+            "places agreeing on a second pose among the recognized ones",
+            n_rival,
+            cfg.relocalize_min_places - 1,
+            note=f"recognized on {list(found.places_used)}{where}",
+        )
 
     def _recognize(self, query: Query) -> PlaceLocalization | None:
         """Top-k places by signature, the hierarchy against each seeded there, the factors gated together."""

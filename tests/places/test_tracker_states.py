@@ -8,8 +8,9 @@ look-alike corridor places 11 m off with a large along-corridor σ, then a right
 recognition are replaced by fixed answers (the factors they would give), so the tests check the tracker's rules.
 
 With ``TrackerConfig.recognize_after = 1`` (not the default, 2) recognition is already tried on the first query without
-support, under the same acceptance rules: a pose that disagrees with the prediction starts a new chain at once, one
-that agrees continues it, a failure leaves the query ``TRACKING`` (flagged) and the kidnap rule still fires later.
+support, under the same acceptance rules: a pose that disagrees with the prediction starts a new chain at once (with
+``confirm_recognition = False``; with it, the default, it waits for the next query: ``test_tracker_confirmation.py``),
+one that agrees continues it, a failure leaves the query ``TRACKING`` (flagged) and the kidnap rule still fires later.
 """
 
 from __future__ import annotations
@@ -59,11 +60,11 @@ def _recognized(x_m: float, y_m: float, sigma_x_m: float, places: tuple[str, str
 
 
 def _track(
-    monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization | None], n: int, recognize_after: int = 2
+    monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization | None], n: int, recognize_after: int = 2, **config
 ) -> tuple[Tracker, list]:
     """``n`` queries from a known start; ``recognize_after = 2`` (= ``kidnap_after``): recognition only when the
-    kidnap rule fires, the rule these tests check; 1 (the default) also on the first query without support."""
-    config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after)
+    kidnap rule fires, the rule these tests check; 1 also on the first query without support."""
+    config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after, **config)
     tracker = Tracker(_building(), config)
     # the places in view of every prediction give no factor (the robot is elsewhere), recognition gives the answers
     monkeypatch.setattr(tracker.multi, "localize", lambda *a, **k: SimpleNamespace(localization=SimpleNamespace(steps=())))
@@ -120,9 +121,10 @@ def test_a_refuted_kidnap_suspicion_continues_the_chain_as_tracking(monkeypatch)
 
 def test_recognition_on_the_first_query_without_support_relocalizes_at_once(monkeypatch) -> None:
     # carried into the corridor after query 0: query 1's places give nothing; recognition on query 1 itself finds two
-    # agreeing corridor places 4 m from the prediction: a new chain there, a query before the kidnap rule would fire
+    # agreeing corridor places 4 m from the prediction: without confirmation (confirm_recognition = False) a new chain
+    # there, a query before the kidnap rule would fire (with it: test_tracker_confirmation.py)
     right = _recognized(20.0 + STEP_M, 0.0, 0.03, ("c13", "c14"))
-    tracker, results = _track(monkeypatch, [right], 2, recognize_after=1)
+    tracker, results = _track(monkeypatch, [right], 2, recognize_after=1, confirm_recognition=False)
     r = results[1]
     assert r.state is TrackState.RELOCALIZED and tracker.chains == 2 and tracker.recognitions == 1
     assert abs(r.pose.x - (20.0 + STEP_M)) < 0.03 and abs(r.pose.y) < 0.03
