@@ -26,9 +26,17 @@
   Recognition can already be tried after :attr:`TrackerConfig.recognize_after` such queries (default 2: only
   when the kidnap rule fires),
   under the same acceptance rules; when it finds nothing there the query stays ``TRACKING`` (flagged) and the
-  kidnap rule fires as before.
+  kidnap rule fires as before. A pose this early recognition puts elsewhere than the prediction does not switch the
+  chain at once (:attr:`TrackerConfig.confirm_recognition`, ``tracker.confirmation``): on the next query the old
+  prediction's own consistent place factors refute it (an aliased place recognized from one degenerate scan); the
+  recognized pose moved by the odometry finding consistent factors of its places in view while the old prediction
+  finds none confirms it (a kidnapping: a new chain); neither leaves the kidnap rule to fire as before;
+* **ambiguity** (``tracker.unique``, :attr:`TrackerConfig.refuse_ambiguous`): a recognition whose factors fall into
+  two groups of at least ``relocalize_min_places`` agreeing places on two different poses (the consistency gate
+  keeps the larger) starts no chain: no count of places tells the two readings of a point-symmetric room apart.
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
+``tracker.confirmation`` and ``tracker.unique`` when recognition ran,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
 pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tracker.jump`` — the squared
 Mahalanobis distance of the new estimate from the prediction (3 dof), which flags any result that moved more than
@@ -137,7 +145,9 @@ class TrackerConfig:
         the kidnap rule as before. A confirmation needs the place factors of a second scan taken from a pose the
         odometry ties to the first — an aliased corridor place recognized from one degenerate scan is refuted by the
         next scan, which the true pose still explains. False: the early recognition switches at once (as before).
-        The kidnap rule's own recognition (after ``kidnap_after`` queries) is never held back.
+        The kidnap rule's own recognition (after ``kidnap_after`` queries) is never held back. An early recognition
+        that agrees with the prediction moves nothing either (its factors, from places chosen by appearance, do not
+        enter the graph): the query goes on unsupported and the kidnap rule is left as it was.
     confirm_min_places
         How many of the recognized pose's places in view must give a factor passing the gate against it on the next
         query for ``confirm_recognition`` to confirm it.
@@ -576,6 +586,10 @@ class Tracker:
                     fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance * float(max(n, 1)))
                     agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
                     checks.append(agree)
+                    if agree.passed and tentative and cfg.confirm_recognition:
+                        # the early recognition agrees: it moves nothing by itself (its places were chosen by
+                        # appearance, not by the prediction); the query goes on as unsupported, the kidnap rule intact
+                        return None
                     if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
                         self._rejected_run = 0
                         return self._continue(query, pred, pred_cov, delta, Q, factors, found.localization.steps, checks, t0)

@@ -139,11 +139,16 @@ def test_recognition_on_the_first_query_without_support_relocalizes_at_once(monk
 
 def test_a_one_off_query_without_support_that_recognition_confirms_continues_the_chain(monkeypatch) -> None:
     x = 2.0 + STEP_M
-    tracker, results = _track(monkeypatch, [_recognized(x + 0.02, ROOM_Y_M, 0.03, ("r1", "r2"))], 2, recognize_after=1)
-    r = results[1]
-    assert r.state is TrackState.TRACKING and tracker.chains == 1  # no new chain
-    assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
-    assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
+    for confirm in (True, False):
+        answer = _recognized(x + 0.02, ROOM_Y_M, 0.03, ("r1", "r2"))
+        tracker, results = _track(monkeypatch, [answer], 2, recognize_after=1, confirm_recognition=confirm)
+        r = results[1]
+        assert r.state is TrackState.TRACKING and tracker.chains == 1  # no new chain
+        assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
+        assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
+        # with confirmation (the default) the early recognition's factors do not enter the graph: it only refutes
+        # the kidnap suspicion; without it they do
+        assert r.places_used == (() if confirm else ("r1", "r2")), (confirm, r.places_used)
 
 
 def test_a_failed_early_recognition_keeps_tracking_and_the_kidnap_rule_still_fires(monkeypatch) -> None:
