@@ -221,6 +221,7 @@ def _track(
 ) -> None:
     """Issue 19, item 3: the held-back scans tracked in the map of the rest (see the module docstring)."""
     from factorloc.evaluation.map_tracking import compare_with_map, track_in_map, track_relations
+    from factorloc.evaluation.places import recognition_events
 
     t0 = time.perf_counter()
     full = build_map(log, config)
@@ -257,7 +258,10 @@ def _track(
             f"{cmp['maps_difference_rmse_cm']:.2f} cm RMSE"
         )
         print(f"tracking latency median {np.median(lat):.1f} ms (p95 {np.percentile(lat, 95):.1f}, max {lat.max():.1f})")
+        events = recognition_events(track.results).to_dict()
+        print(f"recognition events: {events}")
         summary[variant] = {"rows": table, "compare": cmp, "states": track.states(), "latency_ms_median": float(np.median(lat))}
+        summary[variant]["recognition_events"] = events
     if out is not None:
         out.write_text(json.dumps(summary, indent=1))
 

@@ -37,7 +37,14 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from factorloc.evaluation.places import choice_recall, mcl_track, simulated_place_map, simulated_track, track_figures
+from factorloc.evaluation.places import (
+    choice_recall,
+    mcl_track,
+    recognition_events,
+    simulated_place_map,
+    simulated_track,
+    track_figures,
+)
 from factorloc.places import Tracker, TrackerConfig
 
 
@@ -97,7 +104,7 @@ def main() -> None:
         n_choice, choice = choice_recall(sc, results, place_map)
         rows.append(
             {"seed": 1000 + seed, **f.to_dict(), "choice_queries": n_choice, "choice_recall": choice, "cpu_s_per_query": cpu}
-            | {"recognitions": tracker.recognitions}
+            | {"recognitions": tracker.recognitions, "events": recognition_events(results).to_dict()}
             | {"seconds": time.perf_counter() - t0}
         )
         print(
@@ -107,6 +114,7 @@ def main() -> None:
             f"{tracker.recognitions:>5}",
             flush=True,
         )
+        print(f"     recognition events: {rows[-1]['events']}", flush=True)
         if args.mcl:
             m = mcl_track(sc, place_map, world.bounds_xy, particles=args.particles, tracker=tracker).to_dict()
             rows[-1]["mcl"] = m

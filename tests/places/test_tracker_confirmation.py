@@ -22,6 +22,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from factorloc.evaluation.places import recognition_events
 from factorloc.geometry import Pose2
 from factorloc.pipeline import fuse
 from factorloc.places import Place, PlaceMap, Tracker, TrackerConfig, TrackState
@@ -108,6 +109,8 @@ def test_an_aliased_twin_recognized_from_one_blind_query_is_refuted_by_the_next(
     assert r.state is TrackState.TRACKING and not r.flagged and tracker.chains == 1
     assert _checks(r)["tracker.confirmation"].passed is True and "refuted" in _checks(r)["tracker.confirmation"].note
     assert all(abs(x.pose.x - t.x) < 0.05 for x, t in zip(results, truths, strict=True))  # never at the twin
+    events = recognition_events(results)
+    assert (events.held, events.refuted, events.confirmed, events.relocalized) == (1, 1, 0, 0)
     # the rule is what refuses it: without it the twin starts a new chain on the blind query, 4 m off
     tracker, results = _run(
         monkeypatch, truths, [_recognized(twin, ("r3", "r4"))], blind={1}, recognize_after=1, confirm_recognition=False
@@ -129,6 +132,8 @@ def test_a_kidnapping_recognized_on_the_kidnapped_query_is_confirmed_by_the_next
     assert results[3].state is TrackState.TRACKING and not results[3].flagged  # the new chain goes on
     assert abs(results[3].pose.x - corridor[2].x) < 0.03
     assert tracker.recognitions == 1  # the kidnap rule's recognition was not needed
+    events = recognition_events(results)
+    assert (events.held, events.refuted, events.confirmed, events.relocalized) == (1, 0, 1, 1)
 
 
 def test_an_unconfirmed_recognition_leaves_the_kidnap_rule_its_own_recognition(monkeypatch) -> None:
@@ -155,7 +160,7 @@ def test_two_groups_of_agreeing_places_on_two_poses_start_no_chain(monkeypatch) 
     unique = _recognized(corridor[2], ("c13", "c14", "c15"))
     tracker, results = _run(monkeypatch, truths, [ambiguous, unique])
     r = results[2]
-    assert r.state is TrackState.LOST and r.flagged
+    assert r.state is TrackState.LOST and r.flagged and recognition_events(results).ambiguous == 1
     assert _checks(r)["tracker.unique"].passed is False and _checks(r)["tracker.unique"].value == 2
     assert results[3].state is TrackState.RELOCALIZED and _checks(results[3])["tracker.unique"].passed is True
     assert math.hypot(results[3].pose.x - corridor[2].x, results[3].pose.y) < 0.03
