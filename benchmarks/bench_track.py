@@ -72,7 +72,7 @@ def main() -> None:
         "--recognize-after",
         type=int,
         default=TrackerConfig().recognize_after,
-        help="TrackerConfig.recognize_after (2 = kidnap_after: recognition only when the kidnap rule fires, as before)",
+        help="TrackerConfig.recognize_after (default 1; 2 = kidnap_after: recognition only when the kidnap rule fires)",
     )
     ap.add_argument("--track-set", action="append", default=[], metavar="NAME=VALUE", help="override a TrackerConfig field")
     ap.add_argument("--json", type=Path, default=None)

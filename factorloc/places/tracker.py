@@ -23,14 +23,14 @@
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
   against: one with a σ of metres "agrees" with any pose along a corridor (the case is in ``docs/places.md``).
-  Recognition can already be tried after :attr:`TrackerConfig.recognize_after` such queries (default 2: only
-  when the kidnap rule fires),
-  under the same acceptance rules; when it finds nothing there the query stays ``TRACKING`` (flagged) and the
-  kidnap rule fires as before. A pose this early recognition puts elsewhere than the prediction does not switch the
-  chain at once (:attr:`TrackerConfig.confirm_recognition`, ``tracker.confirmation``): on the next query the old
-  prediction's own consistent place factors refute it (an aliased place recognized from one degenerate scan); the
-  recognized pose moved by the odometry finding consistent factors of its places in view while the old prediction
-  finds none confirms it (a kidnapping: a new chain); neither leaves the kidnap rule to fire as before;
+  Recognition is already tried after :attr:`TrackerConfig.recognize_after` such queries (default 1: on the first
+  such query; 2 = ``kidnap_after``: only when the kidnap rule fires), under the same acceptance rules; when it finds
+  nothing there the query stays ``TRACKING`` (flagged) and the kidnap rule fires as before. A pose this early
+  recognition puts elsewhere than the prediction does not switch the chain at once
+  (:attr:`TrackerConfig.confirm_recognition`, ``tracker.confirmation``): on the next query the old prediction's own
+  consistent place factors refute it (an aliased place recognized from one degenerate scan); the recognized pose
+  moved by the odometry finding consistent factors of its places in view while the old prediction finds none
+  confirms it (a kidnapping: a new chain); neither leaves the kidnap rule to fire as before;
 * **ambiguity** (``tracker.unique``, :attr:`TrackerConfig.refuse_ambiguous`): a recognition whose factors fall into
   two groups of at least ``relocalize_min_places`` agreeing places on two different poses (the consistency gate
   keeps the larger) starts no chain: no count of places tells the two readings of a point-symmetric room apart.
@@ -128,12 +128,12 @@ class TrackerConfig:
     recognize_after
         Consecutive queries with places in view and no consistent place factor after which place recognition is
         already tried, before the kidnap rule (≤ ``kidnap_after``; equal: only the kidnap rule asks it). Its answer
-        is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that passes the
-        gate against the prediction continues the chain, one that does not starts a new chain, ``RELOCALIZED`` and
-        flagged); when it finds nothing the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap
-        rule fires as before. 1 asks it on the very query the evidence runs out (on the kidnapped query itself):
-        better on the simulated tours, worse on the real ACES log (aliased corridors re-localized wrongly), so the
-        default is 2 (``docs/places.md``, "Re-localization on the first query without support").
+        is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that disagrees
+        with the prediction waits for the next query's confirmation, ``confirm_recognition``); when it finds nothing
+        the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap rule fires as before. 1 (the
+        default) asks it on the very query the evidence runs out (on the kidnapped query itself). Without
+        ``confirm_recognition`` 1 was worse than 2 on the real ACES log (aliased corridors re-localized wrongly at
+        once); with it, 1 equals 2 there (``docs/places.md``, "Telling a kidnapping from an aliased place").
     confirm_recognition
         A recognized pose that disagrees with the prediction, found by the early recognition of
         ``recognize_after`` (before the kidnap rule fired), does not switch the chain at once: it waits for the next

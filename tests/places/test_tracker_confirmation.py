@@ -151,19 +151,19 @@ def test_an_unconfirmed_recognition_leaves_the_kidnap_rule_its_own_recognition(m
 
 
 def test_two_groups_of_agreeing_places_on_two_poses_start_no_chain(monkeypatch) -> None:
-    # the kidnap rule's recognition: three places on the mirrored reading (5.8 m off), two on the true one; the
-    # majority would win the consistency gate
+    # the kidnap rule's recognition (recognize_after = 2): three places on the mirrored reading (5.8 m off), two on
+    # the true one; the majority would win the consistency gate
     corridor = [Pose2(20.0 + STEP_M * i, 0.0, 0.0) for i in range(4)]
     truths = [_room(0), *corridor]
     mirror = Pose2(corridor[1].x - 5.8, 0.0, math.pi)
     ambiguous = _recognized(mirror, ("c9", "c10", "c11"), rival=(corridor[1], ("c13", "c14")))
     unique = _recognized(corridor[2], ("c13", "c14", "c15"))
-    tracker, results = _run(monkeypatch, truths, [ambiguous, unique])
+    tracker, results = _run(monkeypatch, truths, [ambiguous, unique], recognize_after=2)
     r = results[2]
     assert r.state is TrackState.LOST and r.flagged and recognition_events(results).ambiguous == 1
     assert _checks(r)["tracker.unique"].passed is False and _checks(r)["tracker.unique"].value == 2
     assert results[3].state is TrackState.RELOCALIZED and _checks(results[3])["tracker.unique"].passed is True
     assert math.hypot(results[3].pose.x - corridor[2].x, results[3].pose.y) < 0.03
     # without the rule the majority wins: a new chain on the mirrored reading, 5.8 m off
-    _, results = _run(monkeypatch, truths, [ambiguous, unique], refuse_ambiguous=False)
+    _, results = _run(monkeypatch, truths, [ambiguous, unique], recognize_after=2, refuse_ambiguous=False)
     assert results[2].state is TrackState.RELOCALIZED and abs(results[2].pose.x - mirror.x) < 0.05

@@ -7,10 +7,11 @@ two queries whose places give nothing (the robot was carried into the corridor),
 look-alike corridor places 11 m off with a large along-corridor σ, then a right one. The hierarchy and place
 recognition are replaced by fixed answers (the factors they would give), so the tests check the tracker's rules.
 
-With ``TrackerConfig.recognize_after = 1`` (not the default, 2) recognition is already tried on the first query without
-support, under the same acceptance rules: a pose that disagrees with the prediction starts a new chain at once (with
-``confirm_recognition = False``; with it, the default, it waits for the next query: ``test_tracker_confirmation.py``),
-one that agrees continues it, a failure leaves the query ``TRACKING`` (flagged) and the kidnap rule still fires later.
+With ``TrackerConfig.recognize_after = 1`` (the default; 2 = the kidnap rule alone) recognition is already tried on
+the first query without support, under the same acceptance rules: a pose that disagrees with the prediction starts a
+new chain at once (with ``confirm_recognition = False``; with it, the default, it waits for the next query:
+``test_tracker_confirmation.py``), one that agrees continues it, a failure leaves the query ``TRACKING`` (flagged)
+and the kidnap rule still fires later.
 """
 
 from __future__ import annotations
