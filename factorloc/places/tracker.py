@@ -181,7 +181,7 @@ class TrackerConfig:
     relocalize_sigma_rad: float = 0.3
     gate_probability: float = 0.999
     kidnap_after: int = 2
-    recognize_after: int = 2
+    recognize_after: int = 1
     confirm_recognition: bool = True
     refuse_ambiguous: bool = True
     confirm_min_places: int = 1
