@@ -11,6 +11,7 @@ Usage::
     .venv/bin/python benchmarks/bench_map.py --log mit --pairwise     # + today's pairwise "ours" (minutes)
     .venv/bin/python benchmarks/bench_map.py --log intel --track-every 10  # localizing in the map (issue 19.3)
     .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --place-covariance local
+    .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --track-set recognize_after=1
 
 ``--track-every K`` holds back every K-th scan, maps the rest, tracks the held-back scans through that map with
 the :class:`~factorloc.places.Tracker` (:mod:`factorloc.evaluation.map_tracking`) and reports the relations metric
@@ -19,6 +20,8 @@ share of unflagged results beyond 3σ of the tracker's covariance, and the track
 
 ``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings); a
 dotted name reaches into a nested config, e.g. ``--set icp.reliability.min_heading_strength=0.001``.
+``--track-set name=value`` does the same for the :class:`~factorloc.places.TrackerConfig` of ``--track-every``,
+e.g. ``--track-set recognize_after=1`` or ``--track-set recognition.n_candidates=20``.
 """
 
 from __future__ import annotations
@@ -79,10 +82,11 @@ def _with(obj: object, dotted: str, value: object) -> object:
     return replace(obj, **{head: _with(getattr(obj, head), rest, value) if rest else value})
 
 
-def _config(items: list[str]) -> MapConfig:
-    """The MapConfig of ``--set`` overrides (plain and dotted names)."""
+def config_from_overrides(items: list[str], kind: type = MapConfig) -> object:
+    """The ``kind`` config (MapConfig, TrackerConfig) of ``--set`` / ``--track-set`` overrides (plain and dotted
+    names)."""
     pairs = _overrides(items)
-    config = MapConfig(**{k: v for k, v in pairs.items() if "." not in k})
+    config = kind(**{k: v for k, v in pairs.items() if "." not in k})
     for k, v in pairs.items():
         if "." in k:
             config = _with(config, k, v)
@@ -122,6 +126,13 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--max-scans", type=int, default=None, help="map only the first N scans (and their relations)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="override a MapConfig field")
+    ap.add_argument(
+        "--track-set",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="with --track-every: override a TrackerConfig field (dotted names reach nested configs)",
+    )
     ap.add_argument("--pairwise", action="store_true", help="also run today's pairwise 'ours' on every relation")
     ap.add_argument("--track-every", type=int, default=None, metavar="K", help="hold back every K-th scan and track it")
     ap.add_argument(
@@ -137,10 +148,14 @@ def main() -> None:
     log = read_laser_log(args.data / f"{name}.sort.bag")
     rel = read_relations(args.data / f"{name}.relations")
     log, rel = _prefix(log, rel, args.max_scans)
-    config = _config(args.set)
+    config = config_from_overrides(args.set)
     if args.track_every is not None:
         variants = ["local", "marginal", "none"] if args.place_covariance == "all" else [args.place_covariance]
-        _track(log, rel, config, args.track_every, name, args.json, variants)
+        from factorloc.places import TrackerConfig
+
+        tracker_config = config_from_overrides(args.track_set, TrackerConfig)
+        print(f"tracker settings: {', '.join(args.track_set) or 'defaults'}")
+        _track(log, rel, config, tracker_config, args.track_every, name, args.json, variants)
         return
     t0, c0 = time.perf_counter(), time.process_time()
     result = build_map(log, config)
@@ -205,10 +220,18 @@ def main() -> None:
 
 
 def _track(
-    log: LaserLog, rel: Relations, config: MapConfig, every: int, name: str, out: Path | None, variants: list[str]
+    log: LaserLog,
+    rel: Relations,
+    config: MapConfig,
+    tracker_config: object,
+    every: int,
+    name: str,
+    out: Path | None,
+    variants: list[str],
 ) -> None:
     """Issue 19, item 3: the held-back scans tracked in the map of the rest (see the module docstring)."""
     from factorloc.evaluation.map_tracking import compare_with_map, track_in_map, track_relations
+    from factorloc.evaluation.places import recognition_events
 
     t0 = time.perf_counter()
     full = build_map(log, config)
@@ -216,7 +239,7 @@ def _track(
     reduced = None
     summary = {}
     for variant in variants:
-        track = track_in_map(log, every, config, place_covariance=variant, map_result=reduced)
+        track = track_in_map(log, every, config, tracker_config, place_covariance=variant, map_result=reduced)
         if reduced is None:
             reduced, map_s = track.map, track.map_seconds
         rows = track_relations(track, rel, log)
@@ -245,7 +268,10 @@ def _track(
             f"{cmp['maps_difference_rmse_cm']:.2f} cm RMSE"
         )
         print(f"tracking latency median {np.median(lat):.1f} ms (p95 {np.percentile(lat, 95):.1f}, max {lat.max():.1f})")
+        events = recognition_events(track.results).to_dict()
+        print(f"recognition events: {events}")
         summary[variant] = {"rows": table, "compare": cmp, "states": track.states(), "latency_ms_median": float(np.median(lat))}
+        summary[variant]["recognition_events"] = events
     if out is not None:
         out.write_text(json.dumps(summary, indent=1))
 

@@ -13,7 +13,9 @@ heading from Scan Context). MCL's figures count every determined result (it has 
 ``time.process_time`` per query, hierarchy runs included, for both.
 
 ``recog`` is how many times the tracker ran place recognition (the start-up and each re-localization attempt);
-``--recognize-after 2`` gives the rule before recognition on the first query without support (``recognize_after``).
+``--recognize-after 2`` gives the rule before recognition on the first query without support (``recognize_after``);
+``--track-set NAME=VALUE`` (repeatable) overrides any other :class:`~factorloc.places.TrackerConfig` field, as in
+``bench_map.py`` (e.g. ``--track-set confirm_recognition=False``).
 
 ``--tour`` uses the multi-place worlds instead (:mod:`factorloc.sim.track`): places in every room of ``--world``
 (``apartment`` or ``office``, a grid of ``--place-spacing`` m in each room) and a robot touring the rooms through the
@@ -32,9 +34,17 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
-from factorloc.evaluation.places import choice_recall, mcl_track, simulated_place_map, simulated_track, track_figures
+from factorloc.evaluation.places import (
+    choice_recall,
+    mcl_track,
+    recognition_events,
+    simulated_place_map,
+    simulated_track,
+    track_figures,
+)
 from factorloc.places import Tracker, TrackerConfig
 
 
@@ -62,10 +72,15 @@ def main() -> None:
         "--recognize-after",
         type=int,
         default=TrackerConfig().recognize_after,
-        help="TrackerConfig.recognize_after (2 = kidnap_after: recognition only when the kidnap rule fires, as before)",
+        help="TrackerConfig.recognize_after (default 1; 2 = kidnap_after: recognition only when the kidnap rule fires)",
     )
+    ap.add_argument("--track-set", action="append", default=[], metavar="NAME=VALUE", help="override a TrackerConfig field")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
+    from bench_map import config_from_overrides
+
+    tracker_config = replace(config_from_overrides(args.track_set, TrackerConfig), recognize_after=args.recognize_after)
+    print(f"tracker settings: recognize_after={args.recognize_after} {' '.join(args.track_set)}")
     world = world_by_name(args.world if args.tour else "apartment")
     if args.tour:
         from factorloc.sim.track import room_places
@@ -81,7 +96,7 @@ def main() -> None:
     for seed in args.seeds:
         t0 = time.perf_counter()
         sc = _scenario(args, world, place_map, 1000 + seed)
-        tracker = Tracker(place_map, TrackerConfig(recognize_after=args.recognize_after))
+        tracker = Tracker(place_map, tracker_config)
         c0 = time.process_time()
         results = [tracker.update(q.query) for q in sc.queries]
         cpu = (time.process_time() - c0) / len(sc.queries)
@@ -89,7 +104,7 @@ def main() -> None:
         n_choice, choice = choice_recall(sc, results, place_map)
         rows.append(
             {"seed": 1000 + seed, **f.to_dict(), "choice_queries": n_choice, "choice_recall": choice, "cpu_s_per_query": cpu}
-            | {"recognitions": tracker.recognitions}
+            | {"recognitions": tracker.recognitions, "events": recognition_events(results).to_dict()}
             | {"seconds": time.perf_counter() - t0}
         )
         print(
@@ -99,6 +114,7 @@ def main() -> None:
             f"{tracker.recognitions:>5}",
             flush=True,
         )
+        print(f"     recognition events: {rows[-1]['events']}", flush=True)
         if args.mcl:
             m = mcl_track(sc, place_map, world.bounds_xy, particles=args.particles, tracker=tracker).to_dict()
             rows[-1]["mcl"] = m

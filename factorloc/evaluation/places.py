@@ -39,9 +39,11 @@ __all__ = [
     "RecallResult",
     "SimulatedRecall",
     "McTrack",
+    "RecognitionEvents",
     "TrackFigures",
     "choice_recall",
     "mcl_track",
+    "recognition_events",
     "correct_window_s",
     "path_submaps",
     "places_along_log",
@@ -347,6 +349,46 @@ class TrackFigures:
 
     def to_dict(self) -> dict[str, float]:
         return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class RecognitionEvents:
+    """How often the tracker's recognition rules acted over a run of results (counts of queries): ``held`` — an early
+    recognition disagreed with the prediction and waited for confirmation; ``refuted`` — the next query's own place
+    factors refuted it (an aliased place); ``confirmed`` — the next query confirmed it (a new chain);
+    ``unconfirmed`` — neither (the kidnap rule went on); ``ambiguous`` — ``tracker.unique`` refused a recognition;
+    ``relocalized`` — new chains."""
+
+    held: int
+    refuted: int
+    confirmed: int
+    unconfirmed: int
+    ambiguous: int
+    relocalized: int
+
+    def to_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+def recognition_events(results: Sequence[object]) -> RecognitionEvents:
+    """The :class:`RecognitionEvents` of ``results`` (:class:`~factorloc.places.TrackResult`, any order), read from
+    their typed checks."""
+    from factorloc.places import TrackState
+    from factorloc.verdicts import Comparison
+
+    held = refuted = confirmed = unconfirmed = ambiguous = relocalized = 0
+    for r in results:
+        relocalized += r.state is TrackState.RELOCALIZED  # type: ignore[attr-defined]
+        for c in r.checks:  # type: ignore[attr-defined]
+            if c.code == "tracker.unique" and not c.passed:
+                ambiguous += 1
+            elif c.code == "tracker.confirmation" and c.comparison is Comparison.FLAG:
+                held += not c.passed
+                refuted += c.passed
+            elif c.code == "tracker.confirmation":
+                confirmed += c.passed
+                unconfirmed += not c.passed
+    return RecognitionEvents(held, refuted, confirmed, unconfirmed, ambiguous, relocalized)
 
 
 def track_figures(scenario: object, results: Sequence[object]) -> TrackFigures:

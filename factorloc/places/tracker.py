@@ -23,12 +23,20 @@
   :attr:`TrackerConfig.lost_sigma_m`: the re-localization was called by the kidnap rule, not by the lost rule) and
   the recognized pose passes the prediction gate against it. A prediction the lost rule gave up on is never gated
   against: one with a σ of metres "agrees" with any pose along a corridor (the case is in ``docs/places.md``).
-  Recognition can already be tried after :attr:`TrackerConfig.recognize_after` such queries (default 2: only
-  when the kidnap rule fires),
-  under the same acceptance rules; when it finds nothing there the query stays ``TRACKING`` (flagged) and the
-  kidnap rule fires as before.
+  Recognition is already tried after :attr:`TrackerConfig.recognize_after` such queries (default 1: on the first
+  such query; 2 = ``kidnap_after``: only when the kidnap rule fires), under the same acceptance rules; when it finds
+  nothing there the query stays ``TRACKING`` (flagged) and the kidnap rule fires as before. A pose this early
+  recognition puts elsewhere than the prediction does not switch the chain at once
+  (:attr:`TrackerConfig.confirm_recognition`, ``tracker.confirmation``): on the next query the old prediction's own
+  consistent place factors refute it (an aliased place recognized from one degenerate scan); the recognized pose
+  moved by the odometry finding consistent factors of its places in view while the old prediction finds none
+  confirms it (a kidnapping: a new chain); neither leaves the kidnap rule to fire as before;
+* **ambiguity** (``tracker.unique``, :attr:`TrackerConfig.refuse_ambiguous`): a recognition whose factors fall into
+  two groups of at least ``relocalize_min_places`` agreeing places on two different poses (the consistency gate
+  keeps the larger) starts no chain: no count of places tells the two readings of a point-symmetric room apart.
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
+``tracker.confirmation`` and ``tracker.unique`` when recognition ran,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
 pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tracker.jump`` — the squared
 Mahalanobis distance of the new estimate from the prediction (3 dof), which flags any result that moved more than
@@ -120,12 +128,35 @@ class TrackerConfig:
     recognize_after
         Consecutive queries with places in view and no consistent place factor after which place recognition is
         already tried, before the kidnap rule (≤ ``kidnap_after``; equal: only the kidnap rule asks it). Its answer
-        is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that passes the
-        gate against the prediction continues the chain, one that does not starts a new chain, ``RELOCALIZED`` and
-        flagged); when it finds nothing the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap
-        rule fires as before. 1 asks it on the very query the evidence runs out (on the kidnapped query itself):
-        better on the simulated tours, worse on the real ACES log (aliased corridors re-localized wrongly), so the
-        default is 2 (``docs/places.md``, "Re-localization on the first query without support").
+        is accepted under the same rules (at least ``relocalize_min_places`` agreeing places; a pose that disagrees
+        with the prediction waits for the next query's confirmation, ``confirm_recognition``); when it finds nothing
+        the query stays ``TRACKING`` (flagged by ``tracker.supported``) and the kidnap rule fires as before. 1 (the
+        default) asks it on the very query the evidence runs out (on the kidnapped query itself). Without
+        ``confirm_recognition`` 1 was worse than 2 on the real ACES log (aliased corridors re-localized wrongly at
+        once); with it, 1 equals 2 there (``docs/places.md``, "Telling a kidnapping from an aliased place").
+    confirm_recognition
+        A recognized pose that disagrees with the prediction, found by the early recognition of
+        ``recognize_after`` (before the kidnap rule fired), does not switch the chain at once: it waits for the next
+        query (``tracker.confirmation``). There the old chain's prediction and the recognized pose moved by the same
+        odometry increment each choose their places in view; the old chain's own factors passing its gate refute the
+        recognized pose (an aliased place: the chain goes on), the recognized pose's factors (at least
+        ``confirm_min_places`` passing the gate against it) with none for the old chain confirm it (a kidnapping:
+        a new chain, ``RELOCALIZED``, from the recognized pose moved by the odometry and those factors); neither:
+        the kidnap rule as before. A confirmation needs the place factors of a second scan taken from a pose the
+        odometry ties to the first — an aliased corridor place recognized from one degenerate scan is refuted by the
+        next scan, which the true pose still explains. False: the early recognition switches at once (as before).
+        The kidnap rule's own recognition (after ``kidnap_after`` queries) is never held back. An early recognition
+        that agrees with the prediction moves nothing either (its factors, from places chosen by appearance, do not
+        enter the graph): the query goes on unsupported and the kidnap rule is left as it was.
+    confirm_min_places
+        How many of the recognized pose's places in view must give a factor passing the gate against it on the next
+        query for ``confirm_recognition`` to confirm it.
+    refuse_ambiguous
+        A recognition whose dropped factors agree among themselves on a second pose (at least
+        ``relocalize_min_places`` places: ``tracker.unique``) starts no chain: the majority of a handful of places is
+        no evidence between the two readings of a point-symmetric room or an aliased corridor. The tracker stays
+        ``LOST`` (or, for the early recognition, ``TRACKING`` flagged) and tries again on the next query. A
+        recognized pose that passes the gate against a vouched-for prediction is not refused (the prediction decides).
     lost_sigma_m
         Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
     initial_pose
@@ -150,7 +181,10 @@ class TrackerConfig:
     relocalize_sigma_rad: float = 0.3
     gate_probability: float = 0.999
     kidnap_after: int = 2
-    recognize_after: int = 2
+    recognize_after: int = 1
+    confirm_recognition: bool = True
+    refuse_ambiguous: bool = True
+    confirm_min_places: int = 1
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
@@ -163,7 +197,7 @@ class TrackerConfig:
             raise InputError(f"TrackerConfig.localization must be a factorloc.Config, got {type(self.localization).__name__}")
         if not 0.0 < self.gate_probability < 1.0:
             raise InputError(f"TrackerConfig.gate_probability must be in (0, 1), got {self.gate_probability!r}")
-        for name in ("relocalize_k", "kidnap_after", "recognize_after", "relocalize_min_places"):
+        for name in ("relocalize_k", "kidnap_after", "recognize_after", "relocalize_min_places", "confirm_min_places"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise InputError(f"TrackerConfig.{name} must be an integer >= 1, got {v!r}")
@@ -228,6 +262,31 @@ class TrackResult:
         }
 
 
+@dataclass(frozen=True, eq=False)
+class _Candidate:
+    """A recognized pose held for confirmation (:attr:`TrackerConfig.confirm_recognition`): the query it was
+    recognized on, its pose and covariance there (world frame; the covariance of the inflated factors), its places
+    and its distance from that query's prediction (m)."""
+
+    query_id: str
+    pose: Pose2
+    covariance: np.ndarray
+    places: tuple[str, ...]
+    offset_m: float
+
+
+def _refuted_check(candidate: _Candidate, n_consistent: int) -> Check:
+    """``tracker.confirmation`` passed: the old chain's own places gave consistent factors on the query after an early
+    recognition that disagreed with it; the recognized pose was an aliased place and is dropped."""
+    return Check.flag(
+        "tracker.confirmation",
+        "a recognized pose that disagrees with the prediction is confirmed before the chain switches",
+        True,
+        note=f"refuted: the prediction's places gave {n_consistent} consistent factor(s); the pose recognized at "
+        f"{candidate.query_id} on {list(candidate.places)}, {candidate.offset_m:.2f} m off, is dropped as an aliased place",
+    )
+
+
 def _gate_check(estimate: Estimate, pred: Pose2, pred_cov: np.ndarray, probability: float) -> Check:
     idx = [{Component.X: 0, Component.Y: 1, Component.THETA: 2}[c] for c in estimate.components]
     p = pred.as_array()[idx]
@@ -273,6 +332,7 @@ class Tracker:
         self._last: tuple[Pose2, np.ndarray] | None = None
         self._last_odometry: Pose2 | None = None
         self._rejected_run = 0
+        self._candidate: _Candidate | None = None
         self.chains = 0
         self.recognitions = 0
 
@@ -300,24 +360,15 @@ class Tracker:
             prior = Estimate("initial", FULL, cfg.initial_pose.as_array(), cov0)
             return self._new_chain(query, [prior], (), (), TrackState.TRACKING, checks, t0)
         if self._last is None or delta is None:
+            self._candidate = None
             return self._relocalize(query, None, checks, t0, "no pose yet" if self._last is None else "the odometry broke")
         Q = self._increment_covariance(delta)
         pred, pred_cov = compose_with_covariance(*self._last, delta, Q)
-        scan = None if query.scan is None else query.scan.points_m
-        in_view = [pid for pid, _ in places_in_view(self.place_map, pred, pred_cov, cfg.choice, scan)]
-        accepted: list[Estimate] = []
-        reports: tuple[StepReport, ...] = ()
-        if in_view:
-            seeded = replace(query, odometry=seed_of_prediction(pred, pred_cov))
-            pl = self.multi.localize(seeded, in_view, use_odometry=False)
-            reports = pl.localization.steps
-            for r in reports:
-                if r.status is not StepStatus.FUSED or r.estimate is None:
-                    continue
-                check = _gate_check(r.estimate, pred, pred_cov, cfg.gate_probability)
-                checks.append(check)
-                if check.passed:
-                    accepted.append(r.estimate)
+        in_view, accepted, reports, gates = self._place_factors(query, pred, pred_cov)
+        checks.extend(gates)
+        candidate, self._candidate = self._candidate, None
+        if candidate is not None and accepted:
+            checks.append(_refuted_check(candidate, len(accepted)))
         if accepted:
             self._rejected_run = 0
         elif in_view:
@@ -334,6 +385,10 @@ class Tracker:
                     failure="the pose rests on the odometry since the last place factor",
                 )
             )
+        if candidate is not None and not accepted:
+            confirmed = self._confirm(query, candidate, delta, Q, checks, t0)
+            if confirmed is not None:
+                return confirmed
         sigma_pos = math.sqrt(max(float(np.linalg.eigvalsh(pred_cov[:2, :2])[-1]), 0.0))
         kidnap = self._rejected_run >= cfg.kidnap_after
         lost = sigma_pos > cfg.lost_sigma_m
@@ -388,6 +443,74 @@ class Tracker:
         used = tuple(dict.fromkeys(p for e in accepted if (p := split_step_name(e.step)[1]) is not None))
         return self._result(query, TrackState.TRACKING, pose, cov, reports, used, checks, pred, t0)
 
+    def _place_factors(
+        self, query: Query, pred: Pose2, pred_cov: np.ndarray
+    ) -> tuple[list[str], list[Estimate], tuple[StepReport, ...], list[Check]]:
+        """The places in view of ``pred``, the hierarchy against them seeded there, each factor gated against it:
+        (places in view, factors that passed, the step reports, the gate checks)."""
+        cfg = self.config
+        scan = None if query.scan is None else query.scan.points_m
+        in_view = [pid for pid, _ in places_in_view(self.place_map, pred, pred_cov, cfg.choice, scan)]
+        accepted: list[Estimate] = []
+        gates: list[Check] = []
+        reports: tuple[StepReport, ...] = ()
+        if in_view:
+            seeded = replace(query, odometry=seed_of_prediction(pred, pred_cov))
+            pl = self.multi.localize(seeded, in_view, use_odometry=False)
+            reports = pl.localization.steps
+            for r in reports:
+                if r.status is not StepStatus.FUSED or r.estimate is None:
+                    continue
+                check = _gate_check(r.estimate, pred, pred_cov, cfg.gate_probability)
+                gates.append(check)
+                if check.passed:
+                    accepted.append(r.estimate)
+        return in_view, accepted, reports, gates
+
+    def _confirm(
+        self, query: Query, candidate: _Candidate, delta: Pose2, Q: np.ndarray, checks: list[Check], t0: float
+    ) -> TrackResult | None:
+        """``tracker.confirmation`` on the query after an early recognition that disagreed with the prediction (the
+        old chain's prediction found no consistent factor on this query either): the recognized pose moved by the
+        odometry increment, its places in view, their factors gated against it. Enough of them: a new chain
+        (``RELOCALIZED``); else None (the caller goes on to the kidnap rule) with the failed check added."""
+        cfg = self.config
+        cpred, cpred_cov = compose_with_covariance(candidate.pose, candidate.covariance, delta, Q)
+        in_view, accepted, reports, _ = self._place_factors(query, cpred, cpred_cov)
+        check = Check.at_least(
+            "tracker.confirmation",
+            "places in view of the recognized pose (moved by the odometry) giving a factor consistent with it",
+            len(accepted),
+            cfg.confirm_min_places,
+            note=f"recognized at {candidate.query_id} on {list(candidate.places)}, {candidate.offset_m:.2f} m from that "
+            f"query's prediction; this query's prediction found no consistent factor; places in view of the "
+            f"recognized pose {in_view}",
+        )
+        checks.append(check)
+        if not check.passed:
+            return None
+        checks.append(
+            Check.flag(
+                "tracker.kidnap",
+                "place factors consistent with the prediction",
+                False,
+                note=f"{self._rejected_run} consecutive queries without a consistent place factor",
+                failure="a recognized pose that disagreed with the prediction is confirmed by the next query: kidnapping",
+            )
+        )
+        checks.append(
+            Check.flag(
+                "tracker.relocalized",
+                "re-localized by place recognition",
+                True,
+                note=f"recognized at {candidate.query_id}, confirmed by {len(accepted)} place(s) of this query",
+            )
+        )
+        accepted, _ = _sharing_query_error(accepted, cfg.share_query_error)
+        prior = Estimate("recognition", FULL, cpred.as_array(), cpred_cov)
+        used = tuple(dict.fromkeys(p for e in accepted if (p := split_step_name(e.step)[1]) is not None))
+        return self._new_chain(query, [prior, *accepted], reports, used, TrackState.RELOCALIZED, checks, t0)
+
     # --- helpers --------------------------------------------------------------------------
     def _increment_covariance(self, delta: Pose2) -> np.ndarray:
         m = self.config.odometry_model
@@ -424,6 +547,7 @@ class Tracker:
                 graph.add(f)
         self.chains += 1
         self._rejected_run = 0
+        self._candidate = None
         pose, cov = self._solve(graph, values, k)
         return self._result(query, state, pose, cov, reports, used, checks, None, t0)
 
@@ -447,6 +571,10 @@ class Tracker:
         cfg = self.config
         self.recognitions += 1
         found = self._recognize(query)
+        unique = None
+        if found is not None and len(found.places_used) >= cfg.relocalize_min_places and cfg.refuse_ambiguous:
+            unique = self._unique_check(found)
+            checks.append(unique)
         if found is not None and len(found.places_used) >= cfg.relocalize_min_places:
             factors = [r.estimate for r in found.localization.steps if r.status is StepStatus.FUSED and r.estimate is not None]
             factors, n = _sharing_query_error(factors, cfg.share_query_error)
@@ -458,12 +586,39 @@ class Tracker:
                     fused = Estimate("recognition", FULL, found.pose.as_array(), found.covariance * float(max(n, 1)))
                     agree = _gate_check(fused, pred, pred_cov, cfg.gate_probability)
                     checks.append(agree)
+                    if agree.passed and tentative and cfg.confirm_recognition:
+                        # the early recognition agrees: it moves nothing by itself (its places were chosen by
+                        # appearance, not by the prediction); the query goes on as unsupported, the kidnap rule intact
+                        return None
                     if agree.passed:  # recognition confirms the prediction: the chain goes on, with these factors
                         self._rejected_run = 0
                         return self._continue(query, pred, pred_cov, delta, Q, factors, found.localization.steps, checks, t0)
+                    if unique is not None and not unique.passed:
+                        return self._refused(query, prediction, checks, t0, why, tentative)
+                    if tentative and cfg.confirm_recognition:
+                        # an early recognition that disagrees: held until the next query confirms or refutes it
+                        self._candidate = _Candidate(
+                            query.id,
+                            found.pose,
+                            found.covariance * float(max(n, 1)),
+                            found.places_used,
+                            math.hypot(found.pose.x - pred.x, found.pose.y - pred.y),
+                        )
+                        checks.append(
+                            Check.flag(
+                                "tracker.confirmation",
+                                "a recognized pose that disagrees with the prediction is confirmed before the chain switches",
+                                False,
+                                note=f"{note}; {self._candidate.offset_m:.2f} m from the prediction",
+                                failure="waiting for the next query's place factors around the recognized pose",
+                            )
+                        )
+                        return None
                     note += "; the recognized pose disagrees with the prediction: a new chain"
                 else:
                     note += f"; the prediction (position σ > {cfg.lost_sigma_m:g} m) is not vouched for: a new chain"
+            if unique is not None and not unique.passed:
+                return self._refused(query, prediction, checks, t0, why, tentative)
             if tentative:
                 checks.append(
                     Check.flag(
@@ -478,6 +633,21 @@ class Tracker:
             return self._new_chain(
                 query, factors, found.localization.steps, found.places_used, TrackState.RELOCALIZED, checks, t0
             )
+        return self._refused(query, prediction, checks, t0, why, tentative)
+
+    def _refused(
+        self,
+        query: Query,
+        prediction: tuple[Pose2, np.ndarray, Pose2, np.ndarray] | None,
+        checks: list[Check],
+        t0: float,
+        why: str,
+        tentative: bool,
+    ) -> TrackResult | None:
+        """Recognition gave no pose to start a chain from (too few agreeing places, or an ambiguous answer): None
+        when ``tentative`` (the caller goes on tracking), else ``LOST`` — dead reckoning from the prediction, or no
+        pose at all without one."""
+        cfg = self.config
         if tentative:
             return None
         checks.append(
@@ -486,7 +656,7 @@ class Tracker:
                 "re-localized by place recognition",
                 False,
                 note=why,
-                failure=f"fewer than {cfg.relocalize_min_places} recognized places gave a consistent pose: lost",
+                failure=f"no {cfg.relocalize_min_places} recognized places gave one consistent, unambiguous pose: lost",
             )
         )
         if prediction is None:  # nothing to dead-reckon from
@@ -502,6 +672,30 @@ class Tracker:
         values.insert(k, pred.to_gtsam())
         pose, cov = self._solve(graph, values, k)
         return self._result(query, TrackState.LOST, pose, cov, (), (), checks, pred, t0)
+
+    def _unique_check(self, found: PlaceLocalization) -> Check:
+        """``tracker.unique``: the recognized places whose factors the consistency gate dropped must not agree on a
+        second pose among themselves (at least ``relocalize_min_places`` places again, fused by the same gate): a
+        rival of that support is the other reading of a symmetric or aliased building, and the count of places is
+        no evidence for either."""
+        cfg = self.config
+        rivals = [r.estimate for r in found.localization.steps if r.status is StepStatus.INCONSISTENT and r.estimate is not None]
+        n_rival, where = 0, ""
+        if len({split_step_name(e.step)[1] for e in rivals}) >= cfg.relocalize_min_places:
+            alt = fuse(rivals, gating=cfg.localization.gating)
+            if alt.determined:
+                places = {split_step_name(r.name)[1] for r in alt.steps if r.status is StepStatus.FUSED}
+                n_rival = len(places - {None})
+                d = math.hypot(alt.pose.x - found.pose.x, alt.pose.y - found.pose.y)
+                dth = math.degrees(math.remainder(alt.pose.theta - found.pose.theta, 2 * math.pi))
+                where = f"; the rival pose {d:.2f} m and {dth:.0f}° from the recognized one, on {sorted(places - {None})}"
+        return Check.at_most(
+            "tracker.unique",
+            "places agreeing on a second pose among the recognized ones",
+            n_rival,
+            cfg.relocalize_min_places - 1,
+            note=f"recognized on {list(found.places_used)}{where}",
+        )
 
     def _recognize(self, query: Query) -> PlaceLocalization | None:
         """Top-k places by signature, the hierarchy against each seeded there, the factors gated together."""

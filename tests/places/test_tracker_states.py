@@ -7,9 +7,11 @@ two queries whose places give nothing (the robot was carried into the corridor),
 look-alike corridor places 11 m off with a large along-corridor σ, then a right one. The hierarchy and place
 recognition are replaced by fixed answers (the factors they would give), so the tests check the tracker's rules.
 
-With ``TrackerConfig.recognize_after = 1`` (not the default, 2) recognition is already tried on the first query without
-support, under the same acceptance rules: a pose that disagrees with the prediction starts a new chain at once, one
-that agrees continues it, a failure leaves the query ``TRACKING`` (flagged) and the kidnap rule still fires later.
+With ``TrackerConfig.recognize_after = 1`` (the default; 2 = the kidnap rule alone) recognition is already tried on
+the first query without support, under the same acceptance rules: a pose that disagrees with the prediction starts a
+new chain at once (with ``confirm_recognition = False``; with it, the default, it waits for the next query:
+``test_tracker_confirmation.py``), one that agrees continues it, a failure leaves the query ``TRACKING`` (flagged)
+and the kidnap rule still fires later.
 """
 
 from __future__ import annotations
@@ -59,11 +61,11 @@ def _recognized(x_m: float, y_m: float, sigma_x_m: float, places: tuple[str, str
 
 
 def _track(
-    monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization | None], n: int, recognize_after: int = 2
+    monkeypatch: pytest.MonkeyPatch, answers: list[PlaceLocalization | None], n: int, recognize_after: int = 2, **config
 ) -> tuple[Tracker, list]:
     """``n`` queries from a known start; ``recognize_after = 2`` (= ``kidnap_after``): recognition only when the
-    kidnap rule fires, the rule these tests check; 1 (the default) also on the first query without support."""
-    config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after)
+    kidnap rule fires, the rule these tests check; 1 also on the first query without support."""
+    config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after, **config)
     tracker = Tracker(_building(), config)
     # the places in view of every prediction give no factor (the robot is elsewhere), recognition gives the answers
     monkeypatch.setattr(tracker.multi, "localize", lambda *a, **k: SimpleNamespace(localization=SimpleNamespace(steps=())))
@@ -120,9 +122,10 @@ def test_a_refuted_kidnap_suspicion_continues_the_chain_as_tracking(monkeypatch)
 
 def test_recognition_on_the_first_query_without_support_relocalizes_at_once(monkeypatch) -> None:
     # carried into the corridor after query 0: query 1's places give nothing; recognition on query 1 itself finds two
-    # agreeing corridor places 4 m from the prediction: a new chain there, a query before the kidnap rule would fire
+    # agreeing corridor places 4 m from the prediction: without confirmation (confirm_recognition = False) a new chain
+    # there, a query before the kidnap rule would fire (with it: test_tracker_confirmation.py)
     right = _recognized(20.0 + STEP_M, 0.0, 0.03, ("c13", "c14"))
-    tracker, results = _track(monkeypatch, [right], 2, recognize_after=1)
+    tracker, results = _track(monkeypatch, [right], 2, recognize_after=1, confirm_recognition=False)
     r = results[1]
     assert r.state is TrackState.RELOCALIZED and tracker.chains == 2 and tracker.recognitions == 1
     assert abs(r.pose.x - (20.0 + STEP_M)) < 0.03 and abs(r.pose.y) < 0.03
@@ -137,11 +140,16 @@ def test_recognition_on_the_first_query_without_support_relocalizes_at_once(monk
 
 def test_a_one_off_query_without_support_that_recognition_confirms_continues_the_chain(monkeypatch) -> None:
     x = 2.0 + STEP_M
-    tracker, results = _track(monkeypatch, [_recognized(x + 0.02, ROOM_Y_M, 0.03, ("r1", "r2"))], 2, recognize_after=1)
-    r = results[1]
-    assert r.state is TrackState.TRACKING and tracker.chains == 1  # no new chain
-    assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
-    assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
+    for confirm in (True, False):
+        answer = _recognized(x + 0.02, ROOM_Y_M, 0.03, ("r1", "r2"))
+        tracker, results = _track(monkeypatch, [answer], 2, recognize_after=1, confirm_recognition=confirm)
+        r = results[1]
+        assert r.state is TrackState.TRACKING and tracker.chains == 1  # no new chain
+        assert {c.code: c.passed for c in r.checks}["tracker.jump"] is True
+        assert abs(r.pose.x - x) < 0.03 and abs(r.pose.y - ROOM_Y_M) < 0.03
+        # with confirmation (the default) the early recognition's factors do not enter the graph: it only refutes
+        # the kidnap suspicion; without it they do
+        assert r.places_used == (() if confirm else ("r1", "r2")), (confirm, r.places_used)
 
 
 def test_a_failed_early_recognition_keeps_tracking_and_the_kidnap_rule_still_fires(monkeypatch) -> None:
