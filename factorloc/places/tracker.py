@@ -394,14 +394,14 @@ class Tracker:
         lost = sigma_pos > cfg.lost_sigma_m
         if kidnap or lost:
             checks.append(
-                Check.flag(
+                self._kidnap_check("kidnapping suspected: re-localizing by place recognition")
+                if kidnap
+                else Check.flag(
                     "tracker.kidnap",
                     "place factors consistent with the prediction",
                     False,
-                    note=f"{self._rejected_run} consecutive queries without a consistent place factor"
-                    if kidnap
-                    else f"position σ {sigma_pos:.2f} m > {cfg.lost_sigma_m} m",
-                    failure="kidnapping suspected: re-localizing by place recognition" if kidnap else "lost: re-localizing",
+                    note=f"position σ {sigma_pos:.2f} m > {cfg.lost_sigma_m} m",
+                    failure="lost: re-localizing",
                 )
             )
             why = "kidnapping" if kidnap else "lost"
@@ -490,13 +490,7 @@ class Tracker:
         if not check.passed:
             return None
         checks.append(
-            Check.flag(
-                "tracker.kidnap",
-                "place factors consistent with the prediction",
-                False,
-                note=f"{self._rejected_run} consecutive queries without a consistent place factor",
-                failure="a recognized pose that disagreed with the prediction is confirmed by the next query: kidnapping",
-            )
+            self._kidnap_check("a recognized pose that disagreed with the prediction is confirmed by the next query: kidnapping")
         )
         checks.append(
             Check.flag(
@@ -512,6 +506,17 @@ class Tracker:
         return self._new_chain(query, [prior, *accepted], reports, used, TrackState.RELOCALIZED, checks, t0)
 
     # --- helpers --------------------------------------------------------------------------
+    def _kidnap_check(self, failure: str) -> Check:
+        """``tracker.kidnap`` failed: ``_rejected_run`` consecutive queries gave no place factor consistent with the
+        prediction; ``failure`` says what the tracker does about it."""
+        return Check.flag(
+            "tracker.kidnap",
+            "place factors consistent with the prediction",
+            False,
+            note=f"{self._rejected_run} consecutive queries without a consistent place factor",
+            failure=failure,
+        )
+
     def _increment_covariance(self, delta: Pose2) -> np.ndarray:
         m = self.config.odometry_model
         d = math.hypot(delta.x, delta.y)
@@ -621,13 +626,7 @@ class Tracker:
                 return self._refused(query, prediction, checks, t0, why, tentative)
             if tentative:
                 checks.append(
-                    Check.flag(
-                        "tracker.kidnap",
-                        "place factors consistent with the prediction",
-                        False,
-                        note=f"{self._rejected_run} consecutive queries without a consistent place factor",
-                        failure="place recognition on the first such query disagrees with the prediction: kidnapping",
-                    )
+                    self._kidnap_check("place recognition on the first such query disagrees with the prediction: kidnapping")
                 )
             checks.append(Check.flag("tracker.relocalized", "re-localized by place recognition", True, note=note))
             return self._new_chain(

@@ -21,28 +21,17 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from corridor_building import ROOM_Y_M, building, ring_scan  # beside this file
 
 from factorloc.evaluation.places import recognition_events
 from factorloc.geometry import Pose2
 from factorloc.pipeline import fuse
-from factorloc.places import Place, PlaceMap, Tracker, TrackerConfig, TrackState
+from factorloc.places import Tracker, TrackerConfig, TrackState
 from factorloc.places.multi import PlaceLocalization
-from factorloc.types import FULL, Estimate, Odometry, Query, Reference, Scan
+from factorloc.types import FULL, Estimate, Odometry, Query
 
 STEP_M = 0.25  # the robot drives +x, 25 cm per query
-ROOM_Y_M = 4.0
 SIGMA_M, SIGMA_RAD = 0.02, math.radians(0.3)
-
-
-def _ring_scan(radius_m: float = 3.0, n: int = 90) -> Scan:
-    a = np.linspace(-math.pi, math.pi, n, endpoint=False)
-    return Scan(np.column_stack([radius_m * np.cos(a), radius_m * np.sin(a)]))
-
-
-def _building() -> PlaceMap:
-    room = [Place(f"r{i}", Reference(scan=_ring_scan()), Pose2(1.5 * i, ROOM_Y_M, 0.0)) for i in range(5)]
-    corridor = [Place(f"c{i}", Reference(scan=_ring_scan()), Pose2(1.5 * i, 0.0, 0.0)) for i in range(17)]
-    return PlaceMap(room + corridor)
 
 
 def _factors(pose: Pose2, places: tuple[str, ...]) -> list[Estimate]:
@@ -70,7 +59,7 @@ def _run(
 ) -> tuple[Tracker, list]:
     """Track queries whose true poses are ``truths`` (odometry: +x by STEP_M each, whatever the truth does) from a
     known start at ``truths[0]``; ``blind``: queries whose places give nothing wherever the hierarchy is seeded."""
-    tracker = Tracker(_building(), TrackerConfig(initial_pose=truths[0], **config))
+    tracker = Tracker(building(), TrackerConfig(initial_pose=truths[0], **config))
     k = {"now": 0}
 
     def localize(query, place_ids, use_odometry=True):  # noqa: ANN001, ANN202 - the MultiPlaceLocalizer's shape
@@ -87,7 +76,7 @@ def _run(
     for i in range(len(truths)):
         k["now"] = i
         odo = Odometry(Pose2(STEP_M * i, 0.0, 0.0), 0.05, 0.05, 0.01)
-        results.append(tracker.update(Query(scan=_ring_scan(), odometry=odo, id=f"q{i}")))
+        results.append(tracker.update(Query(scan=ring_scan(), odometry=odo, id=f"q{i}")))
     return tracker, results
 
 

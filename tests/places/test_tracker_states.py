@@ -21,32 +21,21 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from corridor_building import ROOM_Y_M, building, ring_scan  # beside this file
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.pipeline import fuse
-from factorloc.places import Place, PlaceMap, Tracker, TrackerConfig, TrackState
+from factorloc.places import Tracker, TrackerConfig, TrackState
 from factorloc.places.multi import PlaceLocalization
-from factorloc.types import FULL, Estimate, Odometry, Query, Reference, Scan
+from factorloc.types import FULL, Estimate, Odometry, Query
 
 STEP_M = 0.25  # the robot drives +x, 25 cm per query
-ROOM_Y_M = 4.0  # the start: a room beside the corridor (y = 0)
-
-
-def _ring_scan(radius_m: float = 3.0, n: int = 90) -> Scan:
-    a = np.linspace(-math.pi, math.pi, n, endpoint=False)
-    return Scan(np.column_stack([radius_m * np.cos(a), radius_m * np.sin(a)]))
-
-
-def _building() -> PlaceMap:
-    room = [Place(f"r{i}", Reference(scan=_ring_scan()), Pose2(1.5 * i, ROOM_Y_M, 0.0)) for i in range(5)]
-    corridor = [Place(f"c{i}", Reference(scan=_ring_scan()), Pose2(1.5 * i, 0.0, 0.0)) for i in range(17)]
-    return PlaceMap(room + corridor)
 
 
 def _query(k: int) -> Query:
     odo = Odometry(Pose2(2.0 + STEP_M * k, 0.0, 0.0), 0.05, 0.05, 0.01)  # the odometry's own frame: only increments count
-    return Query(scan=_ring_scan(), odometry=odo, id=f"q{k}")
+    return Query(scan=ring_scan(), odometry=odo, id=f"q{k}")
 
 
 def _recognized(x_m: float, y_m: float, sigma_x_m: float, places: tuple[str, str]) -> PlaceLocalization:
@@ -66,7 +55,7 @@ def _track(
     """``n`` queries from a known start; ``recognize_after = 2`` (= ``kidnap_after``): recognition only when the
     kidnap rule fires, the rule these tests check; 1 also on the first query without support."""
     config = TrackerConfig(initial_pose=Pose2(2.0, ROOM_Y_M, 0.0), recognize_after=recognize_after, **config)
-    tracker = Tracker(_building(), config)
+    tracker = Tracker(building(), config)
     # the places in view of every prediction give no factor (the robot is elsewhere), recognition gives the answers
     monkeypatch.setattr(tracker.multi, "localize", lambda *a, **k: SimpleNamespace(localization=SimpleNamespace(steps=())))
     queue = list(answers)
