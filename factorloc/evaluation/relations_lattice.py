@@ -40,7 +40,10 @@ from factorloc.evaluation.relations_data import Relations
 __all__ = [
     "GRID_STEPS_M",
     "HEADING_GRID_STEPS_RAD",
+    "MAX_NORM_M",
+    "MIN_GRID_SHARE",
     "SQUARE_MEAN_DISTANCE",
+    "TOLERANCE_M",
     "HeadingLattice",
     "RelationsLattice",
     "TruthRounding",
@@ -50,6 +53,16 @@ __all__ = [
     "relations_lattice",
     "truth_rounding",
 ]
+
+#: Residual norms above this (m) are never on a translation lattice (a loop relation against the drifted odometry).
+MAX_NORM_M = 0.5
+
+#: How near a lattice norm a translation residual must lie (m); the relations files give 5 decimals (10 µm).
+TOLERANCE_M = 5e-4
+
+#: The share of the relations a grid must hold beyond chance to be reported (:func:`find_relations_grid`,
+#: :func:`find_heading_grid`).
+MIN_GRID_SHARE = 0.5
 
 #: The grid steps :func:`find_relations_grid` tries (m).
 GRID_STEPS_M = (0.005, 0.01, 0.02, 0.025, 0.05, 0.1)
@@ -125,8 +138,8 @@ def relations_lattice(
     odometry: OdometryTrack,
     *,
     step_m: float = 0.05,
-    tolerance_m: float = 5e-4,
-    max_norm_m: float = 0.5,
+    tolerance_m: float = TOLERANCE_M,
+    max_norm_m: float = MAX_NORM_M,
 ) -> RelationsLattice:
     """Test whether ``relations`` are ``odometry`` moved by whole grid steps of ``step_m`` (m).
 
@@ -149,12 +162,18 @@ def relations_lattice(
         On a non-positive or non-finite step, tolerance or bound, a tolerance of half a step or more, or no
         relation.
     """
+    return _translation_lattice(relations, _relative_odometry(relations, odometry), step_m, tolerance_m, max_norm_m)
+
+
+def _translation_lattice(
+    relations: Relations, odo: np.ndarray, step_m: float, tolerance_m: float, max_norm_m: float
+) -> RelationsLattice:
+    """:func:`relations_lattice` on the relations' odometry ``odo`` (:func:`_relative_odometry`)."""
     for name, v in (("step_m", step_m), ("tolerance_m", tolerance_m), ("max_norm_m", max_norm_m)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
             raise InputError(f"{name} must be a finite number > 0, got {v!r}")
     if tolerance_m >= 0.5 * step_m:
         raise InputError(f"tolerance_m ({tolerance_m}) must be below half the step ({step_m})")
-    odo = _relative_odometry(relations, odometry)
     norms = np.hypot(relations.poses[:, 0] - odo[:, 0], relations.poses[:, 1] - odo[:, 1])
     lattice = _lattice_norms(step_m, max_norm_m)
     on = _near(norms, lattice, tolerance_m) & (norms <= max_norm_m)
@@ -169,8 +188,8 @@ def find_relations_grid(
     odometry: OdometryTrack,
     *,
     steps_m: tuple[float, ...] = GRID_STEPS_M,
-    min_share: float = 0.5,
-    tolerance_m: float = 5e-4,
+    min_share: float = MIN_GRID_SHARE,
+    tolerance_m: float = TOLERANCE_M,
 ) -> RelationsLattice | None:
     """The grid a log's relations were rounded to, if any: :func:`relations_lattice` at each of ``steps_m``.
 
@@ -179,9 +198,15 @@ def find_relations_grid(
     the steps tried; None when no step puts at least ``min_share`` of the relations on its grid beyond chance.
     (What it finds on the three laser logs: ``docs/mapping.md``, "How exact the ground truth itself is".)
     """
+    return _find_relations_grid(relations, _relative_odometry(relations, odometry), steps_m, min_share, tolerance_m)
+
+
+def _find_relations_grid(
+    relations: Relations, odo: np.ndarray, steps_m: tuple[float, ...], min_share: float, tolerance_m: float
+) -> RelationsLattice | None:
     if not steps_m:
         raise InputError("steps_m must name at least one grid step")
-    tried = [relations_lattice(relations, odometry, step_m=s, tolerance_m=min(tolerance_m, 0.4 * s)) for s in steps_m]
+    tried = [_translation_lattice(relations, odo, s, min(tolerance_m, 0.4 * s), MAX_NORM_M) for s in steps_m]
     return _largest_near_best(tried, [t.step_m for t in tried], min_share)
 
 
@@ -256,12 +281,16 @@ def heading_lattice(
     InputError
         On a non-positive or non-finite step or tolerance, a tolerance of half a step or more, or no relation.
     """
+    return _heading_lattice(relations, _relative_odometry(relations, odometry), step_rad, tolerance_rad)
+
+
+def _heading_lattice(relations: Relations, odo: np.ndarray, step_rad: float, tolerance_rad: float) -> HeadingLattice:
+    """:func:`heading_lattice` on the relations' odometry ``odo`` (:func:`_relative_odometry`)."""
     for name, v in (("step_rad", step_rad), ("tolerance_rad", tolerance_rad)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0.0):
             raise InputError(f"{name} must be a finite number > 0, got {v!r}")
     if tolerance_rad >= 0.5 * step_rad:
         raise InputError(f"tolerance_rad ({tolerance_rad}) must be below half the step ({step_rad})")
-    odo = _relative_odometry(relations, odometry)
     res = np.remainder(relations.poses[:, 2] - odo[:, 2] + math.pi, 2.0 * math.pi) - math.pi
     phase = np.exp(1j * (2.0 * math.pi / step_rad) * res)
     offset = float(np.angle(phase.mean())) * step_rad / (2.0 * math.pi)
@@ -274,14 +303,18 @@ def find_heading_grid(
     odometry: OdometryTrack,
     *,
     steps_rad: tuple[float, ...] = HEADING_GRID_STEPS_RAD,
-    min_share: float = 0.5,
+    min_share: float = MIN_GRID_SHARE,
 ) -> HeadingLattice | None:
     """The heading grid of a log's relations, if any: as :func:`find_relations_grid`, over ``steps_rad``."""
+    return _find_heading_grid(relations, _relative_odometry(relations, odometry), steps_rad, min_share)
+
+
+def _find_heading_grid(
+    relations: Relations, odo: np.ndarray, steps_rad: tuple[float, ...], min_share: float
+) -> HeadingLattice | None:
     if not steps_rad:
         raise InputError("steps_rad must name at least one heading step")
-    tried = [
-        heading_lattice(relations, odometry, step_rad=h, tolerance_rad=min(HEADING_TOLERANCE_RAD, 0.4 * h)) for h in steps_rad
-    ]
+    tried = [_heading_lattice(relations, odo, h, min(HEADING_TOLERANCE_RAD, 0.4 * h)) for h in steps_rad]
     return _largest_near_best(tried, [t.step_rad for t in tried], min_share)
 
 
@@ -331,4 +364,8 @@ class TruthRounding:
 def truth_rounding(relations: Relations, odometry: OdometryTrack) -> TruthRounding:
     """The rounding of a log's relations to the grid of the matcher that made them (:func:`find_relations_grid`,
     :func:`find_heading_grid`; :meth:`TruthRounding.none` when neither finds one)."""
-    return TruthRounding(find_relations_grid(relations, odometry), find_heading_grid(relations, odometry))
+    odo = _relative_odometry(relations, odometry)  # once: the odometry between each relation's stamps
+    return TruthRounding(
+        _find_relations_grid(relations, odo, GRID_STEPS_M, MIN_GRID_SHARE, TOLERANCE_M),
+        _find_heading_grid(relations, odo, HEADING_GRID_STEPS_RAD, MIN_GRID_SHARE),
+    )
