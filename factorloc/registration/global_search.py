@@ -23,13 +23,23 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
 from factorloc.errors import InputError
 from factorloc.geometry import Pose2
 from factorloc.registration.scan2d import voxel_downsample_2d
 
-__all__ = ["Candidate", "GlobalSearchParams", "LikelihoodField", "build_field", "reference_fields", "score_lattice", "search"]
+__all__ = [
+    "Candidate",
+    "GlobalSearchParams",
+    "LikelihoodField",
+    "build_field",
+    "reference_fields",
+    "score_lattice",
+    "score_lattice_gather",
+    "search",
+]
 
 
 @dataclass(frozen=True)
@@ -144,6 +154,22 @@ def build_field(points_m: np.ndarray, resolution_m: float, sigma_m: float, margi
     return LikelihoodField(values, lo, float(resolution_m))
 
 
+def _lattice_cells(
+    field: LikelihoodField, query_m: np.ndarray, thetas: np.ndarray, t_lo: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(A, N) field cells of the rotated query points at translation offset (0, 0): ``floor((R_θ q + t_lo − origin)/res)``."""
+    res = field.resolution_m
+    c, s = np.cos(thetas), np.sin(thetas)
+    # rotated query points: (A, N)
+    rx = c[:, None] * query_m[None, :, 0] - s[:, None] * query_m[None, :, 1]
+    ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
+    t_lo = np.asarray(t_lo, dtype=np.float64)
+    tx, ty = (t_lo[0], t_lo[1]) if t_lo.ndim == 1 else (t_lo[:, :1], t_lo[:, 1:])
+    bx = np.floor((rx + tx - field.origin_m[0]) / res + 1e-9).astype(np.int64)
+    by = np.floor((ry + ty - field.origin_m[1]) / res + 1e-9).astype(np.int64)
+    return bx, by
+
+
 def score_lattice(
     field: LikelihoodField,
     query_m: np.ndarray,
@@ -158,22 +184,71 @@ def score_lattice(
 
     With ``stride`` s > 1 only every s-th translation is scored: (A, ⌈Kx/s⌉, ⌈Ky/s⌉) at ``kx, ky ∈ {0, s, 2s, …}``.
 
-    For a query point in cell ``(bx, by)`` at translation offset ``(0, 0)``,
-    the values at all offsets are the field's ``Kx × Ky`` window starting at
-    that cell: one gather of windows (a strided view of the field, zero-padded
-    so that every window lies inside) scores every translation of every
-    heading; cells outside the field count as 0.
+    For a query point in cell ``(bx, by)`` at translation offset ``(0, 0)``, the values at all offsets are the
+    field's ``Kx × Ky`` window starting at that cell; cells outside the field count as 0. The compiled kernel
+    adds each point's window into the heading's score plane (float32, points in order, then divided by N): the
+    same sums, in the same order, as the gather of :func:`score_lattice_gather`, without the (A, N, Kx, Ky)
+    array it builds (``benchmarks/bench_global_search.py`` times both on the laser logs).
     """
-    res = field.resolution_m
+    bx, by = _lattice_cells(field, query_m, thetas, t_lo)
+    kx, ky = n_steps
+    return _window_means(field.values, bx, by, int(kx), int(ky), int(stride))
+
+
+@njit(cache=True)
+def _window_means(F: np.ndarray, bx: np.ndarray, by: np.ndarray, kx: int, ky: int, stride: int) -> np.ndarray:  # noqa: PLR0913
+    """``out[a, i, j] = Σ_n F[bx[a,n] + i·s, by[a,n] + j·s] / N`` (float32, cells outside F count as 0).
+
+    F is copied into a border of zeros one window wide, so that every window of a point that touches the field
+    lies inside the copy, with its columns split by phase modulo the stride: every inner loop runs over
+    contiguous cells of fixed length (it vectorizes); a point whose window misses the field adds nothing."""
+    n_a, n = bx.shape
+    h, w = F.shape
+    nx = (kx + stride - 1) // stride
+    ny = (ky + stride - 1) // stride
+    # F in a border of zeros one window wide, the columns of each phase modulo the stride side by side:
+    # ``phases[r, x, k]`` is the bordered field at row x, column r + k·s, so a window's strided columns are contiguous
+    wp = (w + 2 * ky + stride - 1) // stride
+    phases = np.zeros((stride, h + 2 * kx, wp), dtype=np.float32)
+    for r in range(stride):
+        for x in range(h):
+            for k in range(wp):
+                col = r + k * stride - ky
+                if 0 <= col < w:
+                    phases[r, x + kx, k] = F[x, col]
+    out = np.zeros((n_a, nx, ny), dtype=np.float32)
+    for a in range(n_a):
+        for p in range(n):
+            x0, y0 = bx[a, p] + kx, by[a, p] + ky
+            if x0 <= 0 or x0 >= h + kx or y0 <= 0 or y0 >= w + ky:
+                continue
+            plane_of = phases[y0 % stride]
+            k0 = y0 // stride
+            for i in range(nx):
+                row = plane_of[x0 + i * stride]
+                acc = out[a, i]
+                for j in range(ny):
+                    acc[j] += row[k0 + j]
+    count = np.float32(n)
+    for a in range(n_a):
+        for i in range(nx):
+            for j in range(ny):
+                out[a, i, j] = out[a, i, j] / count
+    return out
+
+
+def score_lattice_gather(
+    field: LikelihoodField,
+    query_m: np.ndarray,
+    thetas: np.ndarray,
+    t_lo: np.ndarray,
+    n_steps: tuple[int, int],
+    stride: int = 1,
+) -> np.ndarray:
+    """:func:`score_lattice` by one numpy gather of windows (a strided view of the zero-padded field): the
+    reference the compiled kernel is tested and timed against."""
     F = field.values
-    c, s = np.cos(thetas), np.sin(thetas)
-    # rotated query points: (A, N)
-    rx = c[:, None] * query_m[None, :, 0] - s[:, None] * query_m[None, :, 1]
-    ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
-    t_lo = np.asarray(t_lo, dtype=np.float64)
-    tx, ty = (t_lo[0], t_lo[1]) if t_lo.ndim == 1 else (t_lo[:, :1], t_lo[:, 1:])
-    bx = np.floor((rx + tx - field.origin_m[0]) / res + 1e-9).astype(np.int64)
-    by = np.floor((ry + ty - field.origin_m[1]) / res + 1e-9).astype(np.int64)
+    bx, by = _lattice_cells(field, query_m, thetas, t_lo)
     kx, ky = n_steps
     # a point whose whole window lies outside the field scores 0 at every offset: it reads an all-zero window
     # of the border, so that the padding stays within one window of the field whatever the coordinates
@@ -190,6 +265,51 @@ def score_lattice(
     if stride > 1:
         windows = windows[:, :, ::stride, ::stride]
     return windows[bx + px0, by + py0].mean(axis=1)
+
+
+#: Relative tolerance of the suppression radius: two maxima exactly ``separation_m`` apart (lattice offsets often
+#: are, e.g. two coarse cells) are distinct whatever the rounding of their coordinates.
+SEPARATION_RTOL = 1e-9
+
+
+@njit(cache=True)
+def _suppress(  # noqa: PLR0913
+    a: np.ndarray,
+    kx: np.ndarray,
+    ky: np.ndarray,
+    thetas: np.ndarray,
+    resolution_m: float,
+    separation_m: float,
+    separation_rad: float,
+    n_max: int,
+) -> np.ndarray:
+    """Greedy non-maximum suppression of lattice maxima given best first (heading index, cell offsets): the
+    indices of the first ``n_max`` that lie no closer than ``separation_m`` in position *or* ``separation_rad``
+    in heading to every one kept before them (distances in lattice offsets, compared with
+    :data:`SEPARATION_RTOL`)."""
+    limit_m2 = (separation_m * (1.0 - SEPARATION_RTOL)) ** 2
+    limit_rad = separation_rad * (1.0 - SEPARATION_RTOL)
+    two_pi = 2.0 * math.pi
+    kept = np.empty(min(n_max, len(a)), dtype=np.int64)
+    n_kept = 0
+    for k in range(len(a)):
+        if n_kept >= n_max:
+            break
+        same = False
+        for m in range(n_kept):
+            q = kept[m]
+            dx = float(kx[k] - kx[q]) * resolution_m
+            dy = float(ky[k] - ky[q]) * resolution_m
+            if dx * dx + dy * dy >= limit_m2:
+                continue
+            d = abs(thetas[a[k]] - thetas[a[q]]) % two_pi
+            if min(d, two_pi - d) < limit_rad:
+                same = True
+                break
+        if not same:
+            kept[n_kept] = k
+            n_kept += 1
+    return kept[:n_kept]
 
 
 def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
@@ -247,9 +367,7 @@ def search(
     n1 = int(math.ceil(p.radius_m / r1))
     t_lo = center - n1 * r1
     thetas = _angle_grid(heading_rad, heading_half_width_rad, p.coarse_angle_step_rad)
-    scores = np.concatenate(
-        [score_lattice(coarse, q1, thetas[i : i + 16], t_lo, (2 * n1 + 1, 2 * n1 + 1)) for i in range(0, len(thetas), 16)]
-    )
+    scores = score_lattice(coarse, q1, thetas, t_lo, (2 * n1 + 1, 2 * n1 + 1))
     # local maxima of the score volume (heading × x × y) within the suppression radius, then a greedy
     # non-maximum suppression among them, best first: sorting only the peaks, not every pose
     sep_a = max(1, int(p.separation_rad // p.coarse_angle_step_rad))
@@ -260,18 +378,11 @@ def search(
     peak &= scores > 0.0
     idx = np.flatnonzero(peak)
     idx = idx[np.argsort(scores.ravel()[idx], kind="stable")[::-1]]
-    picked: list[tuple[float, float, float, float]] = []
-    for flat in idx:
-        a, kx, ky = np.unravel_index(int(flat), scores.shape)
-        x, y, th = t_lo[0] + kx * r1, t_lo[1] + ky * r1, float(thetas[a])
-        if any(
-            math.hypot(x - px, y - py) < p.separation_m and abs(math.remainder(th - pt, 2 * math.pi)) < p.separation_rad
-            for px, py, pt, _ in picked
-        ):
-            continue
-        picked.append((x, y, th, float(scores[a, kx, ky])))
-        if len(picked) >= p.n_coarse:
-            break
+    a1, kx1, ky1 = np.unravel_index(idx, scores.shape)
+    keep = _suppress(a1, kx1, ky1, thetas, r1, p.separation_m, p.separation_rad, p.n_coarse)
+    picked = [
+        (t_lo[0] + kx1[k] * r1, t_lo[1] + ky1[k] * r1, float(thetas[a1[k]]), float(scores[a1[k], kx1[k], ky1[k]])) for k in keep
+    ]
 
     # level 2: fine lattice around each survivor
     q2 = voxel_downsample_2d(qry, 0.5 * p.fine_resolution_m)
