@@ -380,9 +380,8 @@ def search(
     idx = idx[np.argsort(scores.ravel()[idx], kind="stable")[::-1]]
     a1, kx1, ky1 = np.unravel_index(idx, scores.shape)
     keep = _suppress(a1, kx1, ky1, thetas, r1, p.separation_m, p.separation_rad, p.n_coarse)
-    picked = [
-        (t_lo[0] + kx1[k] * r1, t_lo[1] + ky1[k] * r1, float(thetas[a1[k]]), float(scores[a1[k], kx1[k], ky1[k]])) for k in keep
-    ]
+    # the survivors (x_m, y_m, θ_rad), best first
+    xyt = np.column_stack([t_lo[0] + kx1[keep] * r1, t_lo[1] + ky1[keep] * r1, thetas[a1[keep]]])
 
     # level 2: fine lattice around each survivor
     q2 = voxel_downsample_2d(qry, 0.5 * p.fine_resolution_m)
@@ -390,11 +389,10 @@ def search(
     n2 = int(math.ceil(r1 / r2))
     # 2a: every other fine cell and fine angle step over ± one coarse cell and step; 2b: the full fine lattice
     # within one (doubled) step of 2a's best — a quarter of the work of the full lattice, the same maxima. Every
-    # survivor's headings are scored in one gather (one corner per heading row)
-    m = len(picked)
+    # survivor's headings are scored in one call (one corner per heading row)
+    m = len(xyt)
     out: list[Candidate] = []
     if m:
-        xyt = np.array([(x, y, th) for x, y, th, _ in picked])
         offs = _angle_grid(0.0, p.coarse_angle_step_rad, 2.0 * p.fine_angle_step_rad)
         th2 = (xyt[:, 2:3] + offs[None, :]).ravel()
         lo = np.repeat(xyt[:, :2] - n2 * r2, len(offs), axis=0)
