@@ -14,6 +14,8 @@ import numpy as np
 
 from factorloc._validate import finite_float
 
+_TWO_PI = 2.0 * math.pi
+
 
 def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     """Wrap an angle (or array of angles) to [-π, π).
@@ -21,8 +23,10 @@ def wrap_angle(angle_rad: float | np.ndarray) -> float | np.ndarray:
     The one helper every module uses, so that wrapping is done the same way
     everywhere.
     """
-    if isinstance(angle_rad, float):  # the common scalar case without numpy's call overhead; same arithmetic
-        out = float(np.float64(angle_rad + math.pi) % (2.0 * math.pi) - math.pi)
+    if isinstance(angle_rad, float):
+        # the common scalar case in plain floats: Python's float ``%`` is numpy's (C ``fmod``, then the divisor's
+        # sign), so the same bits without a numpy scalar (``tests/test_geometry.py`` compares them)
+        out = (angle_rad + math.pi) % _TWO_PI - math.pi
         return -math.pi if out >= math.pi else out  # just below -π, the mod rounds up to 2π: map π to -π
     wrapped = np.asarray(angle_rad, dtype=np.float64) + math.pi  # a new array: the input is never written
     if wrapped.ndim == 0:
@@ -46,8 +50,8 @@ def rotate_covariance(covariance: np.ndarray, theta_rad: float) -> np.ndarray:
     Used to turn a body-frame pose covariance (GTSAM's ``Marginals``) into
     the world frame (``theta_rad`` = the pose's heading) and back (``-theta``).
     """
-    r = np.eye(3)
-    r[:2, :2] = rot2(theta_rad)
+    c, s = math.cos(theta_rad), math.sin(theta_rad)
+    r = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # diag(rot2(θ), 1), built in one call
     out = r @ covariance @ r.T
     return 0.5 * (out + out.T)
 

@@ -187,17 +187,21 @@ def _check_scan_and_profile(points: np.ndarray, profile: np.ndarray | None, name
         raise InputError(f"the profile of {name} must be a non-empty 1-D float64 array, got shape {np.shape(profile)}")
 
 
-def alignment_violation(profile_a: np.ndarray, points_a: np.ndarray, profile_b: np.ndarray, points_b: np.ndarray, T_a_b) -> float:
+def alignment_violation(
+    profile_a: np.ndarray, points_a: np.ndarray, profile_b: np.ndarray, points_b: np.ndarray, T_a_b, *, validate: bool = True
+) -> float:
     """Free-space violation of an alignment, the larger of the two directions (one compiled call).
 
     ``points_b`` (scan b, its sensor frame) moved by ``T_a_b`` into a's frame against ``profile_a``, and
     ``points_a`` moved by ``T_a_b⁻¹`` into b's frame against ``profile_b`` (:func:`free_space_violation`,
     default margins): N×2 float64 arrays of finite points (N ≥ 1) and profiles from :func:`polar_profile`
     (:class:`~factorloc.errors.InputError` otherwise, before the compiled code); ``T_a_b`` is a
-    :class:`~factorloc.geometry.Pose2`.
+    :class:`~factorloc.geometry.Pose2`. ``validate=False`` skips those checks: for a caller whose arrays passed
+    them already (the ICP step's scans, validated when it aligned them); the compiled code does not bound-check.
     """
-    _check_scan_and_profile(points_a, profile_a, "points_a")
-    _check_scan_and_profile(points_b, profile_b, "points_b")
+    if validate:
+        _check_scan_and_profile(points_a, profile_a, "points_a")
+        _check_scan_and_profile(points_b, profile_b, "points_b")
     return _alignment_violation(profile_a, points_b, *_rigid(T_a_b), profile_b, points_a, *_rigid(T_a_b.inverse()))
 
 
@@ -222,12 +226,13 @@ def _alignment_violation(
 
 
 def profile_and_violation(
-    profile_a: np.ndarray, points_a: np.ndarray, points_b: np.ndarray, T_a_b, gap_free_m: float
+    profile_a: np.ndarray, points_a: np.ndarray, points_b: np.ndarray, T_a_b, gap_free_m: float, *, validate: bool = True
 ) -> tuple[np.ndarray, float]:
     """Scan b's :func:`polar_profile` (default bins and gap width, ``gap_free_m``) and
-    :func:`alignment_violation` of ``T_a_b`` with it, in one compiled call; the arrays as there."""
-    _check_scan_and_profile(points_a, profile_a, "points_a")
-    _check_scan_and_profile(points_b, None, "points_b")
+    :func:`alignment_violation` of ``T_a_b`` with it, in one compiled call; the arrays and ``validate`` as there."""
+    if validate:
+        _check_scan_and_profile(points_a, profile_a, "points_a")
+        _check_scan_and_profile(points_b, None, "points_b")
     return _profile_and_violation(
         profile_a,
         points_a,

@@ -34,7 +34,19 @@ def component_indices(components: Sequence[Component | str]) -> list[int]:
     return [COMPONENT_INDEX[Component(c)] for c in components]
 
 
+#: The canonical tuples by themselves (a tuple of names or members equal to one maps to it).
+_CANONICAL: Mapping[tuple[Component, ...], tuple[Component, ...]] = MappingProxyType({c: c for c in ALLOWED_COMPONENTS})
+
+
 def component_set(value: Any) -> tuple[Component, ...]:
+    """``value`` (component names or members) as one of the allowed sets in canonical order, or InputError."""
+    if type(value) is tuple:
+        try:
+            canonical = _CANONICAL.get(value)
+        except TypeError:  # unhashable items: the general form below says what is wrong
+            canonical = None
+        if canonical is not None:
+            return canonical
     try:
         comps = tuple(sorted({Component(c) for c in value}, key=COMPONENT_INDEX.__getitem__))
     except (TypeError, ValueError) as exc:

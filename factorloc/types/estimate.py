@@ -39,6 +39,32 @@ def _cholesky_pivots(c: list[list[float]]) -> list[float]:
     return d
 
 
+def _cholesky_pivots3(c: list[list[float]]) -> list[float]:
+    """:func:`_cholesky_pivots` of a 3×3 matrix, unrolled: the same operations in the same order (``sum`` starts
+    from the integer 0), so the same bits (``tests/test_types.py`` compares them)."""
+    d0 = c[0][0] - 0
+    if not d0 > 0.0:
+        return [d0]
+    l10 = (c[1][0] - 0) / d0
+    l20 = (c[2][0] - 0) / d0
+    d1 = c[1][1] - (0 + l10 * l10 * d0)
+    if not d1 > 0.0:
+        return [d0, d1]
+    l21 = (c[2][1] - (0 + l20 * l10 * d0)) / d1
+    d2 = c[2][2] - ((0 + l20 * l20 * d0) + l21 * l21 * d1)
+    return [d0, d1, d2]
+
+
+def _float_rows(name: str, value: Any, k: int) -> list[list[float]]:
+    """``value`` as k×k nested lists of finite floats: what :func:`~factorloc._validate.float_array` accepts, read
+    without its copy when ``value`` is already a finite k×k float64 array (the errors are float_array's)."""
+    if type(value) is np.ndarray and value.dtype == np.float64 and value.shape == (k, k):
+        rows = value.tolist()
+        if all(map(math.isfinite, value.ravel().tolist())):
+            return rows
+    return float_array(name, value, (k, k)).tolist()
+
+
 def _covariance(name: str, value: Any, k: int) -> np.ndarray:
     """The k×k covariance ``value``, checked: symmetric, positive definite, every σ (the square root of a diagonal
     term) in [SIGMA_MIN, SIGMA_MAX] (:mod:`factorloc._validate`) and correlations away from ±1
@@ -51,20 +77,22 @@ def _covariance(name: str, value: Any, k: int) -> np.ndarray:
     ``λ_min ≥ det(R) / k^(k−1)`` (the other eigenvalues sum to at most ``tr R = k``), with ``det R`` the product
     of the pivots over that of the diagonal; ``det R ≥`` :data:`_SURE_CORRELATION_DET` makes ``λ_min`` at least
     1e-7, five orders above the limit and far beyond the rounding of either computation."""
-    cov = float_array(name, value, (k, k))
-    c = cov.tolist()
-    bad = [i for i in range(k) if c[i][i] > 0.0 and not SIGMA_MIN**2 <= c[i][i] <= SIGMA_MAX**2]  # ≤ 0: not PD, below
+    c = _float_rows(name, value, k)
+    bad = [i for i in range(k) if c[i][i] > 0.0 and not _VAR_MIN <= c[i][i] <= _VAR_MAX]  # ≤ 0: not PD, below
     if bad:
         raise InputError(
             f"{name}[{bad[0]}][{bad[0]}] must be a variance whose σ is in [{SIGMA_MIN:g}, {SIGMA_MAX:g}] (m or rad), "
             f"got {c[bad[0]][bad[0]]!r}"
         )
-    # np.allclose(rtol=1e-9, atol=1e-15), cheaper
-    if any(abs(c[i][j] - c[j][i]) > 1e-15 + 1e-9 * abs(c[j][i]) for i in range(k) for j in range(k)):
+    # np.allclose(rtol=1e-9, atol=1e-15), cheaper. An exactly symmetric matrix (what the estimators build) is its
+    # own symmetrized mean, bit for bit, when no entry is below 2^-1021 in magnitude except zeros (0.5·a is then
+    # exact, and so is 0.5·a + 0.5·a = a); otherwise the mean is taken
+    exact = _exactly_symmetric(c, k)
+    if not exact and any(abs(c[i][j] - c[j][i]) > 1e-15 + 1e-9 * abs(c[j][i]) for i in range(k) for j in range(k)):
         raise InputError(f"{name} must be symmetric, got {c}")
-    sym = [[0.5 * c[i][j] + 0.5 * c[j][i] for j in range(k)] for i in range(k)]
+    sym = c if exact else [[0.5 * c[i][j] + 0.5 * c[j][i] for j in range(k)] for i in range(k)]
     cov = np.array(sym)
-    pivots = _cholesky_pivots(sym)
+    pivots = _cholesky_pivots3(sym) if k == 3 else _cholesky_pivots(sym)
     if not all(p > 0.0 for p in pivots):
         with np.errstate(all="ignore"):
             eig = np.linalg.eigvalsh(cov).tolist() if np.abs(cov).max() <= SIGMA_MAX**2 else "(entries beyond σ² range)"
@@ -80,6 +108,19 @@ def _covariance(name: str, value: Any, k: int) -> np.ndarray:
     cov.setflags(write=False)
     return cov
 
+
+_VAR_MIN, _VAR_MAX = SIGMA_MIN**2, SIGMA_MAX**2
+_HALF_EXACT = 2.0**-1021  # from this magnitude on, 0.5·a is exact (a / 2 is a normal double)
+_UPPER = {k: [(i, j) for i in range(k) for j in range(i + 1, k)] for k in (1, 2, 3)}
+
+
+def _exactly_symmetric(c: list[list[float]], k: int) -> bool:
+    """Whether ``c`` (k×k finite floats) equals its symmetrized mean ``0.5·c + 0.5·cᵀ`` bit for bit by construction:
+    exactly symmetric, and every entry zero or at least 2^-1021 in magnitude."""
+    if not all(c[i][j] == c[j][i] for i, j in _UPPER.get(k, ())) or k not in _UPPER:
+        return False
+    flat = [x for row in c for x in row]
+    return min(map(abs, flat)) >= _HALF_EXACT or all(x == 0.0 or abs(x) >= _HALF_EXACT for x in flat)
 
 #: A correlation matrix (k ≤ 3) whose determinant reaches this has its smallest eigenvalue ≥ 1e-6 / 9 (see
 #: :func:`_covariance`): no need to compute it against :data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`.
@@ -144,10 +185,14 @@ class Estimate:
         comps = component_set(self.components)
         object.__setattr__(self, "components", comps)
         k = len(comps)
-        values = np.array(float_array(f"Estimate({self.step}).values", self.values, (k,)))
+        v = self.values
+        if type(v) is np.ndarray and v.dtype == np.float64 and v.shape == (k,) and all(map(math.isfinite, v.tolist())):
+            values = v.copy()  # what float_array would accept, without its copy and checks' calls
+        else:
+            values = np.array(float_array(f"Estimate({self.step}).values", v, (k,)))
         if comps[-1] is Component.THETA:
-            values[-1] = wrap_angle(values[-1])
-        if k >= 2 and not float(np.abs(values[:2]).max()) <= MAX_COORDINATE_M:
+            values[-1] = wrap_angle(float(values[-1]))
+        if k >= 2 and not max(abs(float(values[0])), abs(float(values[1]))) <= MAX_COORDINATE_M:
             raise InputError(
                 f"Estimate({self.step}).values: position ({values[0]!r}, {values[1]!r}) m is beyond the documented "
                 f"coordinate range ±{MAX_COORDINATE_M:g} m"
@@ -230,15 +275,16 @@ class Estimate:
 
     def measures(self, component: Component | str) -> bool:
         """Whether this estimate measures ``component``."""
-        return Component(component) in self.components
+        return (component if type(component) is Component else Component(component)) in self.components
 
     def value(self, component: Component | str) -> float:
         """The measured value of ``component`` (m or rad)."""
-        return float(self.values[self.components.index(Component(component))])
+        c = component if type(component) is Component else Component(component)
+        return float(self.values[self.components.index(c)])
 
     def sigma(self, component: Component | str) -> float:
         """The standard deviation of ``component`` (m or rad)."""
-        i = self.components.index(Component(component))
+        i = self.components.index(component if type(component) is Component else Component(component))
         return float(math.sqrt(self.covariance[i, i]))
 
     @property

@@ -35,7 +35,7 @@ from factorloc.registration.kernels import RobustKernel, kernel_from_name
 from factorloc.registration.scan2d import alignment_violation, overlap_fitness, polar_profile, profile_and_violation
 from factorloc.verdicts import Check
 
-__all__ = ["QueryScan", "Seeds", "Solution", "evidence", "global_attempts", "seed_fit", "seeded_attempt"]
+__all__ = ["QueryScan", "Seeds", "Solution", "evidence", "global_attempts", "near_seed", "seed_fit", "seeded_attempt"]
 
 
 @dataclass(frozen=True)
@@ -72,11 +72,17 @@ class QueryScan:
     def violation(self, prepared: IcpReference, T: Pose2) -> float:
         """Free-space violation of the alignment ``T`` (query in reference frame), the larger of the two
         directions (:func:`~factorloc.registration.scan2d.alignment_violation`; with the profile in one call,
-        :func:`~factorloc.registration.scan2d.profile_and_violation`, when it is not known yet)."""
+        :func:`~factorloc.registration.scan2d.profile_and_violation`, when it is not known yet).
+
+        Only for an alignment :func:`~factorloc.registration.icp2d.align` returned: the query points passed its
+        checks then (and the reference's :func:`~factorloc.registration.icp2d.prepare_target`'s), so they are not
+        checked again."""
         if self._profile is None:
-            self._profile, v = profile_and_violation(prepared.profile, prepared.points_m, self.points_m, T, self.gap_free_m)
+            self._profile, v = profile_and_violation(
+                prepared.profile, prepared.points_m, self.points_m, T, self.gap_free_m, validate=False
+            )
             return v
-        return alignment_violation(prepared.profile, prepared.points_m, self._profile, self.points_m, T)
+        return alignment_violation(prepared.profile, prepared.points_m, self._profile, self.points_m, T, validate=False)
 
     def overlap(self, prepared: IcpReference, T: Pose2, config: IcpConfig) -> tuple[float, int]:
         """Fitness over the points each scan's sensor could have seen, the smaller of the two directions, and that
@@ -187,6 +193,16 @@ def seed_fit(prepared: IcpReference, sol: Solution, seeds: Seeds, config: IcpCon
     s = config.seed
     jump = dist > s.jump_margin_m + 3.0 * max(pos[2], pos[3])
     return SeedFit(pos[4], d2, chi2_2dof(s.consistency_probability), jump or weak(sol.strength, s.check_max_constraint))
+
+
+def near_seed(prepared: IcpReference, sol: Solution, seeds: Seeds, config: IcpConfig) -> Solution:
+    """A seeded solution that passed its own tests, with its :func:`seed_fit` and the rules' last stage judged
+    (:func:`~factorloc.estimators.icp.rules.judge` after its checks): once no other solution replaces it."""
+    ev = sol.evidence
+    ev = Evidence(ev.fitness, ev.strength, ev.violation, ev.rivalry, ev.contest, seed_fit(prepared, sol, seeds, config))
+    return Solution(
+        sol.result, sol.covariance, ev, judge(ev, config, after=sol.checks), sol.origin, sol.used_global, sol.n_candidates
+    )
 
 
 def _seeded_gate(config: IcpConfig, points: np.ndarray, seeds: Seeds) -> float:

@@ -115,8 +115,8 @@ def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
     sw = float(w.sum()) if len(w) >= 3 else 0.0
     if not sw > 0.0:
         return out
-    h = result.hessian
-    a, b, c = float(h[0, 0]) / sw, float(h[0, 1]) / sw, float(h[1, 1]) / sw
+    h00, h01, _, _, h11 = result.hessian.ravel().tolist()[:5]
+    a, b, c = h00 / sw, h01 / sw, h11 / sw
     lam = max(0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b), _WEAK_FLOOR)
     v0, v1 = (b, lam - a) if abs(lam - a) >= abs(lam - c) else (lam - c, b)
     n = float(np.hypot(v0, v1))
@@ -173,7 +173,10 @@ def heading_strength(result: IcpResult) -> float:
     if not lever > 0.0:
         return 0.0
     h = np.asarray(result.hessian, dtype=np.float64)
-    hpp = h[:2, :2] + 1e-9 * max(float(h[0, 0] + h[1, 1]), 1e-300) * np.eye(2)
+    h00, h01, _, h10, h11 = h.ravel().tolist()[:5]
+    reg = 1e-9 * max(h00 + h11, 1e-300)
+    # h[:2, :2] + reg·I, entry by entry (the zeros of reg·I added too: the same bits as the numpy form)
+    hpp = np.array([[h00 + reg, h01 + 0.0], [h10 + 0.0, h11 + reg]])
     schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
     value = min(max(schur / lever, 0.0), 1.0)
     return 0.0 if value < ROUNDING_TOLERANCE else value

@@ -17,8 +17,8 @@ from factorloc.estimators.icp.candidates import (
     Seeds,
     Solution,
     global_attempts,
+    near_seed,
     seed_distance2,
-    seed_fit,
     seeded_attempt,
     with_violation,
 )
@@ -92,8 +92,7 @@ def estimate(
         return _without_seed(prepared)
     if not best.used_global:
         # a seeded solution that passes its own tests must also stay near its seed where it could slide or jumped
-        ev = replace(best.evidence, seed_fit=seed_fit(prepared, best, seeds, config))
-        best = replace(best, evidence=ev, checks=judge(ev, config, after=best.checks))
+        best = near_seed(prepared, best, seeds, config)
     left_seed = any(c.code == "icp.seed.consistency" and not c.passed for c in best.checks)
     evidence = None
     if seeded is not None:
@@ -130,9 +129,11 @@ def _heading_checked(est: Estimate, sol: Solution, config: IcpConfig) -> Estimat
     report is whatever its seed was, so it is left to the other steps (a waived check says so) rather than fused
     with a σ the geometry does not support. An unreliable estimate is returned as it is.
     """
+    if not est.reliable:
+        return est
     limit = config.reliability.min_heading_strength
     strength = heading_strength(sol.result)
-    if not est.reliable or not weak(strength, limit):
+    if not weak(strength, limit):
         return est
     check = Check.at_least(
         "icp.constraint.heading",
