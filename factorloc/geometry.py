@@ -69,6 +69,11 @@ class Pose2:
     theta: float = 0.0
 
     def __post_init__(self) -> None:
+        x, y, theta = self.x, self.y, self.theta
+        if type(x) is float and type(y) is float and type(theta) is float and math.isfinite(x + y + theta):
+            # the common case (finite floats, as every pose the library computes): only θ changes (wrapped)
+            object.__setattr__(self, "theta", wrap_angle(theta))
+            return
         object.__setattr__(self, "x", finite_float("Pose2.x", self.x))
         object.__setattr__(self, "y", finite_float("Pose2.y", self.y))
         object.__setattr__(self, "theta", wrap_angle(finite_float("Pose2.theta", self.theta)))

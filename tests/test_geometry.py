@@ -57,3 +57,37 @@ def test_pose2_rejects_non_finite_or_non_numeric(field: str, value: object) -> N
     kwargs = {"x": 0.0, "y": 0.0, "theta": 0.0, field: value}
     with pytest.raises(InputError, match=f"Pose2.{field}"):
         Pose2(**kwargs)
+
+
+def test_scalar_wrap_is_bit_for_bit_the_array_form() -> None:
+    """The scalar case (plain floats) gives the bits of the numpy form, at the edges too (±π, 2π, tiny, huge)."""
+    rng = np.random.default_rng(7)
+    edges = np.array([math.pi, -math.pi, 2 * math.pi, -2 * math.pi, 3 * math.pi, 0.0, -0.0, 1e-300, -1e-300, 1e300, -1e300])
+    values = np.concatenate(
+        [
+            rng.uniform(-10, 10, 20000),
+            rng.uniform(-1e6, 1e6, 2000),
+            edges,
+            np.nextafter(edges, np.inf),
+            np.nextafter(edges, -np.inf),
+        ]
+    )
+    scalar = [wrap_angle(float(v)) for v in values]
+    array = wrap_angle(values)
+    assert all(isinstance(s, float) for s in scalar)
+    assert np.array_equal(np.array(scalar), array)
+    assert [math.copysign(1.0, s) for s in scalar] == np.copysign(1.0, array).tolist()
+
+
+def test_pose2_fast_path_is_the_validated_one() -> None:
+    """Finite floats take the short path (θ wrapped only); other numbers the checked one: the same pose."""
+    p = Pose2(1.5, -2.0, 4.0)
+    q = Pose2(np.float64(1.5), 2 - 4, np.float64(4.0))  # numpy scalars and an int: converted by the checks
+    assert (p.x, p.theta) == (q.x, q.theta) and q.y == -2.0 and type(q.y) is float and type(q.x) is float
+    assert p.theta == wrap_angle(4.0)
+    with pytest.raises(InputError, match="Pose2.y"):
+        Pose2(0.0, math.inf, 0.0)
+    with pytest.raises(InputError, match="Pose2.x"):
+        Pose2(math.nan, 0.0, 0.0)
+    big = Pose2(1e308, 1e308, 0.0)  # the sum overflows: the checked path, which accepts it
+    assert big.x == 1e308

@@ -242,3 +242,47 @@ def test_positive_definite_check_agrees_with_eigenvalues_on_random_and_near_sing
         assert all(p > 0 for p in pivots) == bool(lam.min() > 0), (c, lam, pivots)
         checked += 1
     assert checked > 2000
+
+
+def test_unrolled_pivots_and_the_exactly_symmetric_path_give_the_general_bits():
+    """The 3×3 LDLᵀ pivots unrolled are the general loop's, bit for bit; an exactly symmetric covariance (taken as
+    its own mean) gives the same Estimate as the general symmetrization, and a nearly symmetric one is averaged."""
+    from factorloc.types.estimate import _cholesky_pivots, _cholesky_pivots3, _covariance
+
+    rng = np.random.default_rng(5)
+    for _ in range(2000):
+        eig = 10.0 ** rng.uniform(-8, 4, 3) * rng.choice([1.0, 1.0, 1.0, -1.0, 0.0], 3)
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        c = q @ np.diag(eig) @ q.T
+        c = 0.5 * (c + c.T)
+        assert _cholesky_pivots3(c.tolist()) == _cholesky_pivots(c.tolist())
+    a = rng.normal(size=(3, 3))
+    c = a @ a.T * 1e-2
+    c = 0.5 * (c + c.T)
+    c[0, 2] = c[2, 0] = 0.0
+    sym = np.array([[0.5 * c[i, j] + 0.5 * c[j, i] for j in range(3)] for i in range(3)])
+    assert np.array_equal(_covariance("c", c, 3), sym) and not _covariance("c", c, 3).flags.writeable
+    assert np.array_equal(_covariance("c", c.tolist(), 3), sym)  # lists take float_array's path
+    tiny = c.copy()
+    tiny[0, 1] = tiny[1, 0] = 3e-310  # subnormal: 0.5·a is not exact, so the general mean is taken
+    assert np.array_equal(
+        _covariance("c", tiny, 3), np.array([[0.5 * tiny[i, j] + 0.5 * tiny[j, i] for j in range(3)] for i in range(3)])
+    )
+    near = c.copy()
+    near[0, 1] *= 1 + 1e-12  # within the tolerance: averaged
+    assert _covariance("c", near, 3)[0, 1] == 0.5 * near[0, 1] + 0.5 * near[1, 0]
+    bad = c.copy()
+    bad[1, 1] = np.nan
+    with pytest.raises(InputError, match="contains 1 NaN"):  # float_array's error, as before
+        _covariance("c", bad, 3)
+
+
+def test_component_set_lookup_matches_the_general_form():
+    from factorloc.types.components import FULL, HEADING, POSITION, component_set
+
+    assert component_set(("x", "y", "theta")) is FULL and component_set((Component.THETA,)) is HEADING
+    assert component_set(["y", "x"]) == POSITION and component_set(("y", "x")) == POSITION
+    with pytest.raises(InputError, match="drawn from"):
+        component_set((["x"], "y"))
+    with pytest.raises(InputError, match="position-only"):
+        component_set(("x",))

@@ -122,6 +122,7 @@ def _exactly_symmetric(c: list[list[float]], k: int) -> bool:
     flat = [x for row in c for x in row]
     return min(map(abs, flat)) >= _HALF_EXACT or all(x == 0.0 or abs(x) >= _HALF_EXACT for x in flat)
 
+
 #: A correlation matrix (k ≤ 3) whose determinant reaches this has its smallest eigenvalue ≥ 1e-6 / 9 (see
 #: :func:`_covariance`): no need to compute it against :data:`~factorloc._validate.MIN_CORRELATION_EIGENVALUE`.
 _SURE_CORRELATION_DET = 1e-6

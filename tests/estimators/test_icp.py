@@ -559,3 +559,30 @@ def test_a_weak_odometry_prior_keeps_a_corridor_view_from_a_confidently_wrong_gl
         assert ("icp.global.seed_refuted" in loc.step("icp").rule_codes) is not wrong
         err = metrics.pose_errors(loc.pose.as_array()[None], case.truth.as_array()[None])
         assert bool(metrics.confidently_wrong(err, loc.covariance[None])[0]) is wrong
+
+
+def test_near_seed_is_the_seed_fit_and_last_stage_by_replace():
+    """:func:`near_seed` (direct construction) gives the solution ``dataclasses.replace`` would: evidence with the
+    seed fit, checks judged after the first stages, the rest kept."""
+    from factorloc.estimators.icp.candidates import QueryScan, Seeds, near_seed, seed_fit, seeded_attempt
+    from factorloc.estimators.icp.rules import judge
+
+    cfg = IcpConfig()
+    rng = np.random.default_rng(2)
+    ang = np.linspace(-math.pi, math.pi, 240, endpoint=False)
+    room = np.column_stack([np.clip(3 / np.abs(np.cos(ang)), 0, 4) * np.cos(ang), 2.5 * np.sin(ang)])
+    prepared = prepare_reference(Reference(scan=Scan(room)), cfg)
+    qry = room[::2] + rng.normal(0, 0.01, (120, 2))
+    seeds = Seeds((0.05, -0.03, 0.2, 0.2, "odometry"), (0.02, 0.05, "odometry"))
+    sol = seeded_attempt(prepared, QueryScan(qry, cfg), seeds, cfg)
+    ev = replace(sol.evidence, seed_fit=seed_fit(prepared, sol, seeds, cfg))
+    want = replace(sol, evidence=ev, checks=judge(ev, cfg, after=sol.checks))
+    got = near_seed(prepared, sol, seeds, cfg)
+    assert got.evidence == want.evidence and got.checks == want.checks and got.reliable == want.reliable
+    assert (got.result, got.covariance, got.origin, got.used_global, got.n_candidates) == (
+        want.result,
+        want.covariance,
+        want.origin,
+        want.used_global,
+        want.n_candidates,
+    )

@@ -277,3 +277,19 @@ def test_compiled_pca_reproduces_the_numpy_form() -> None:
             np.testing.assert_allclose(q1, q0, rtol=0, atol=1e-12)
     # (bit for bit on the development machine, whose OpenBLAS and numpy einsum orders the compiled sums emulate;
     # another BLAS kernel may add the numpy form's terms in another order, hence the tolerance)
+
+
+def test_free_space_calls_without_validation_give_the_checked_figures():
+    """``validate=False`` (for arrays already checked) skips the checks only: the same profile and violations."""
+    from factorloc.geometry import Pose2
+    from factorloc.registration.scan2d import alignment_violation, polar_profile, profile_and_violation
+
+    rng = np.random.default_rng(3)
+    a = np.column_stack([np.cos(np.linspace(-2, 2, 120)), np.sin(np.linspace(-2, 2, 120))]) * rng.uniform(2, 4, (120, 1))
+    b = a[::2] + rng.normal(0, 0.02, (60, 2))
+    T = Pose2(0.1, -0.05, 0.03)
+    pa = polar_profile(a)
+    prof, v = profile_and_violation(pa, a, b, T, 1.0)
+    prof2, v2 = profile_and_violation(pa, a, b, T, 1.0, validate=False)
+    assert np.array_equal(prof, prof2, equal_nan=True) and v == v2
+    assert alignment_violation(pa, a, prof, b, T) == alignment_violation(pa, a, prof, b, T, validate=False)

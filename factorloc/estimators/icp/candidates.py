@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from functools import lru_cache
+from functools import cached_property, lru_cache
 
 import numpy as np
 from scipy.stats import chi2
@@ -107,8 +107,9 @@ class Solution:
     used_global: bool = False
     n_candidates: int = 0
 
-    @property
+    @cached_property
     def reliable(self) -> bool:
+        """Whether every check passed."""
         return passed(self.checks)
 
     @property

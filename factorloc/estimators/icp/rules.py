@@ -12,7 +12,7 @@ says about the hypothesis that seeded the alignment, read by the pipeline's seed
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from factorloc.estimators.icp.config import IcpConfig
@@ -288,9 +288,12 @@ RULES: tuple[tuple[Rule, ...], ...] = (
 POSITION_RULES = frozenset({"icp.constraint"})
 
 
-def passed(checks: tuple[Check, ...]) -> bool:
+def passed(checks: Sequence[Check]) -> bool:
     """Whether every check passed."""
-    return all(c.passed for c in checks)
+    for c in checks:
+        if not c.passed:
+            return False
+    return True
 
 
 def judge(ev: Evidence, config: IcpConfig, after: tuple[Check, ...] | None = None) -> tuple[Check, ...]:
@@ -300,17 +303,17 @@ def judge(ev: Evidence, config: IcpConfig, after: tuple[Check, ...] | None = Non
     later stages are evaluated (a seeded solution's seed-consistency stage, once it is known to be the result).
     """
     out: list[Check] = [] if after is None else list(after)
-    start = 0 if after is None else 2
-    if not passed(tuple(out)):
+    if not passed(out):
         return tuple(out)
-    for stage in RULES[start:]:
+    ablate = config.ablate
+    for stage in RULES if after is None else RULES[2:]:
         for rule in stage:
-            if rule.code in config.ablate:  # type: ignore[attr-defined]
+            if rule.code in ablate:  # type: ignore[attr-defined]
                 continue
             c = rule(ev, config)
             if c is not None:
                 out.append(c)
-        if not all(c.passed for c in out):
+        if not passed(out):
             break
     return tuple(out)
 
