@@ -30,6 +30,10 @@ default compass (query views detected at half scale) and the full-scale one (``q
 estimates (median, RMSE) and their heading NEES (1 dof: mean ``(err/σ)²``, ≈ 1 when σ is honest)
 with the count beyond 3σ.
 
+With ``--no-depth DIR ...`` it runs the heading-only compass on those scenarios with each reference's cloud left
+out, the spread bound (``CompassConfig.parallax_from_spread``) on and off: views from other spots, where the votes'
+agreement must not be read as "here".
+
 With ``--pose DIR ...`` it prints the pose-from-bearings table per scenario (the compass with and without its pose,
 the correlation after each, a plain ORB vote baseline, CPU ms per query); ``--set name=value ...`` adds a variant of
 :class:`CompassConfig` beside them, query by query in the same run. ``--same-spot N``: views at the reference spot.
@@ -507,8 +511,9 @@ def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] |
 def bench_same_spot(n_views: int) -> None:
     """Views at the reference spot, the issue's protocol: odometry heading σ 10° and position σ 0.2 m (that much noise drawn).
 
-    Simulated apartment (the reference has a cloud: the pose path applies) and the two real panoramas (no depth:
-    the heading-only fallback, which must assume the 0.2 m the odometry allows).
+    Simulated apartment, with its cloud (the pose path applies) and without (the heading-only path), and the two real
+    panoramas (no depth: the heading-only path, whose parallax term is the smaller of the 0.2 m the odometry allows
+    and what the votes' own spread bounds, ``CompassConfig.parallax_from_spread``).
     """
     import cv2
 
@@ -539,6 +544,7 @@ def bench_same_spot(n_views: int) -> None:
         return CameraImage(photometric(cam.image_bgr), cam.hfov_rad)
 
     sources.append(("simulated apartment (cloud)", sim_ref, sim_view))
+    sources.append(("simulated apartment (no depth)", Reference(panorama=pano, T_world_reference=t_ref), sim_view))
     for name, (w, h) in {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}.items():
         path = PANORAMAS / name
         if not path.is_file():
@@ -577,6 +583,52 @@ def bench_same_spot(n_views: int) -> None:
         print(tr.row(f"{label} / correlation"))
         print(tb.row(f"{label} / ORB vote baseline"))
         _print_ratios({"compass": tc, "correlation": tr, "ORB vote baseline": tb}, "compass", "correlation", label)
+
+
+def bench_no_depth(directories: list[Path], max_queries: int, overrides: list[str] | None = None) -> None:
+    """The heading-only compass without reference depth, the spread bound on and off, on simulated scenarios.
+
+    Each reference's cloud is left out (its panorama and pose kept), so that only the heading-only path runs and the
+    parallax cannot be corrected: views 0.3–3 m from the reference, where the votes' own spread must not be read as
+    "here" (``CompassConfig.parallax_from_spread``; the danger is a scene whose points all shift alike). Odometry as
+    the pipeline seeds it; same queries, query by query.
+    """
+    import cv2
+
+    from factorloc.datasets import load_scenario
+    from factorloc.evaluation.runner import evaluation_set
+
+    cv2.setNumThreads(1)
+    variants = {
+        "spread bound (default)": compass.CompassConfig(),
+        "no spread bound": compass.CompassConfig(parallax_from_spread=False),
+    }
+    for item in overrides or []:
+        kw = _overrides([item])
+        variants[item] = compass.CompassConfig(**kw)
+    odo = OdometryStep()
+    for directory in directories:
+        data = evaluation_set(load_scenario(directory))
+        tallies = {k: PoseTally() for k in variants}
+        prepared: dict = {}
+        for case in data.cases[:max_queries]:
+            if case.truth is None or not case.query.images:
+                continue
+            ref0 = data.reference_of(case)
+            ref = Reference(panorama=ref0.panorama, T_world_reference=ref0.T_world_reference, name=ref0.name)
+            dist = math.hypot(case.truth.x - ref.T_world_reference.x, case.truth.y - ref.T_world_reference.y)
+            hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
+            for name, cfg in variants.items():
+                key = (name, case.reference_id)
+                if key not in prepared:
+                    prepared[key] = compass.prepare(ref, cfg)
+                t0 = time.process_time()
+                est = compass.estimate(ref, case.query, hyp, cfg, prepared=prepared[key])
+                tallies[name].add(est, case.truth, time.process_time() - t0, dist)
+        print(f"\n== {directory}, references without depth (heading-only compass) ==")
+        print(POSE_HEADER)
+        for label, t in tallies.items():
+            print(t.row(label))
 
 
 def bench_pose_fit(n: int, overrides: list[str]) -> None:
@@ -653,17 +705,20 @@ def main() -> None:
     parser.add_argument("--pose", type=Path, nargs="+", default=None, help="pose-from-bearings table on these scenarios")
     parser.add_argument("--same-spot", type=int, default=0, help="same-spot views per source (sim + real panoramas)")
     parser.add_argument("--pose-fit", type=int, default=0, help="the pose rules' fitting set: N simulated views")
+    parser.add_argument("--no-depth", type=Path, nargs="+", default=None, help="heading-only compass without depth on these")
     parser.add_argument(
         "--set",
         nargs="*",
         default=[],
-        help="CompassConfig overrides name=value: --pose-fit, or a variant beside --pose",
+        help="CompassConfig overrides name=value: --pose-fit, one variant beside --pose, or one variant each beside --no-depth",
     )
     args = parser.parse_args()
     if args.pose_fit:
         bench_pose_fit(args.pose_fit, args.set)
         return
-    if args.pose or args.same_spot:
+    if args.pose or args.same_spot or args.no_depth:
+        if args.no_depth:
+            bench_no_depth(args.no_depth, args.scenario_queries, args.set)
         if args.pose:
             bench_pose(args.pose, args.scenario_queries, args.set)
         if args.same_spot:

@@ -87,6 +87,7 @@ from factorloc.vision.depth import (
     headings_from_points,
     parallax_sigma,
     position_seed,
+    spread_parallax_bound,
     uncorrected_parallax_sigma,
 )
 from factorloc.vision.strips import Grid, Strip, camera_strip, panorama_strip, texture_problem, to_gray
@@ -182,6 +183,17 @@ class CompassConfig:
         inlier bearings with the hypothesis as a prior (:func:`resect`), so that σθ2 is the
         heading's marginal σ (features at several depths and directions separate a turn from a
         sideways shift).
+    parallax_from_spread
+        The parallax term of the heading-only σ is at most what the inliers' own spread allows
+        (:func:`factorloc.vision.depth.spread_parallax_bound`): at the reference spot the votes agree to a
+        fraction of a pixel across the view, which no displacement large enough to matter would leave them,
+        so the σ no longer assumes the displacement the position hypothesis allows (without reference depth
+        that assumption was the whole σ: no same-spot view of the real panoramas was reliable).
+    spread_confidence
+        Confidence of the upper limit on the inliers' rms residual that bound uses.
+    spread_bound_gain
+        Multiplies that bound: the plane it assumes is the worst case of a plane, not of every scene (points
+        near one circle through both positions shift alike, see the function).
     depth_relative_sigma
         The relative error of the reference ranges in the resection.
         A reference range's σ is the larger of ``depth_relative_sigma``·D and half the range spread
@@ -276,6 +288,9 @@ class CompassConfig:
     record_pairs: bool = False
     position_shift_support: float = 1.1
     resection: bool = True
+    parallax_from_spread: bool = True
+    spread_confidence: float = 0.99
+    spread_bound_gain: float = 1.0
     depth_relative_sigma: float = 0.1
     pose_from_bearings: bool = True
     pose_depth_cols: int = 1440
@@ -319,6 +334,10 @@ class CompassConfig:
             raise ConfigError(f"compass.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
         if not 0.0 < self.max_ambiguity <= 1.0:
             raise ConfigError(f"compass.max_ambiguity must be in (0, 1], got {self.max_ambiguity!r}")
+        if not self.spread_bound_gain > 0.0:
+            raise ConfigError(f"compass.spread_bound_gain must be > 0, got {self.spread_bound_gain!r}")
+        if not 0.0 < self.spread_confidence < 1.0:
+            raise ConfigError(f"compass.spread_confidence must be in (0, 1), got {self.spread_confidence!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -620,6 +639,12 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
             config.unknown_position_sigma_m,
             config.default_range_m,
         )
+    bound, bound_k = math.inf, math.inf
+    if config.parallax_from_spread and n_in >= config.min_inliers:
+        # the parallax a displacement leaves in the mode is bounded by what it leaves in the residuals
+        bound, bound_k = spread_parallax_bound(az_r[ri[inliers]], resid, n_effective=n_eff, confidence=config.spread_confidence)
+        bound *= config.spread_bound_gain
+        sigma_par = min(sigma_par, bound)
     # spread of the inliers, a cluster term (a few coincident votes locate the mode only to about band/√n),
     # the floor, and the parallax term
     sigma_cluster = config.inlier_band_rad / math.sqrt(max(n_eff, 1))
@@ -684,6 +709,8 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         inlier_ratio=n_in / len(qi),
         spread_rad=spread,
         sigma_parallax_rad=sigma_par,
+        parallax_bound_rad=bound,
+        parallax_bound_k=bound_k,
         ambiguity=ambiguity,
         rival_support=rival,
         rival_offset_rad=rival_offset,

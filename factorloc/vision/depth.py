@@ -208,3 +208,76 @@ def uncorrected_parallax_sigma(
     else:
         ranges = np.array([default_range_m])
     return parallax_sigma(offset, ranges)
+
+
+#: Steps of the worst-case search of :func:`spread_parallax_bound` over ``u ∈ [0, π)`` (0.5° apart).
+_BOUND_STEPS = 360
+
+
+def spread_parallax_bound(
+    bearings_rad: np.ndarray, residuals_rad: np.ndarray, *, n_effective: int, confidence: float
+) -> tuple[float, float]:
+    """How far (rad) the mode of heading votes can be turned by a displacement its own residuals do not show.
+
+    A displacement ``d`` (any direction ``ψ``) seen against points on one plane (any orientation ``α``, at a
+    distance ``D``) turns the bearing of the point at ``φ`` by ``δ(φ) = (d/D) cos(φ − α) sin(φ − ψ)``, which is
+    ``(d/2D)·[sin(2φ − u) + sin v]`` with ``u = α + ψ``, ``v = α − ψ``. The votes' mode (their mean) is off by
+    ``mean δ`` while the residuals about it carry ``δ − mean δ``; for the given bearings ``φᵢ``::
+
+        |mean δ| ≤ k · rms(δ − mean δ),   k = max_u (|M(u)| + 1) / S(u)
+
+    with ``M(u)``, ``S(u)`` the mean and standard deviation of ``sin(2φᵢ − u)`` (``sin v = ±1`` is the worst
+    case; that the plane faces the camera is not imposed, so the bound covers more scenes than it needs to).
+    A 57° view with its bearings spread evenly gives ``k ≈ 13`` (a sideways step against a wall straight
+    ahead: every bearing turns by nearly the same angle); bearings bunched in one direction give a larger
+    ``k``, and ``inf`` when they coincide. Noise only adds to the residuals, so their rms bounds
+    ``rms(δ − mean δ)``; it is taken at its one-sided upper confidence limit ``rms · √(n / χ²_n(1 − confidence))``
+    (``n = n_effective − 1`` degrees of freedom: the mode took one).
+
+    A model, not a theorem for every scene: points on a circle through both camera positions see one parallax
+    (the inscribed-angle theorem) and show no spread at all. Indoors that is a wall curving around a camera
+    standing at it.
+
+    Parameters
+    ----------
+    bearings_rad
+        (N,) directions of the matched points from the query (any common frame, rad).
+    residuals_rad
+        (N,) the inlier votes minus their mode (rad).
+    n_effective
+        The number of independent votes the residuals stand for (≥ 2).
+    confidence
+        Of the upper limit on the residuals' rms, in (0, 1).
+
+    Returns
+    -------
+    (bound_rad, k)
+        ``k · rms_upper`` and ``k`` (``inf`` for both when the bearings bound nothing).
+    """
+    from factorloc.stats import chi2_quantile
+
+    phi = np.asarray(bearings_rad, dtype=np.float64).ravel()
+    e = np.asarray(residuals_rad, dtype=np.float64).ravel()
+    if phi.size < 2 or phi.size != e.size or n_effective < 2:
+        return math.inf, math.inf
+    s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)
+    ms, mc = float(s2.mean()), float(c2.mean())
+    vss, vcc = float(np.mean((s2 - ms) ** 2)), float(np.mean((c2 - mc) ** 2))
+    vsc = float(np.mean((s2 - ms) * (c2 - mc)))
+    u = np.arange(_BOUND_STEPS) * (math.pi / _BOUND_STEPS)
+    cu, su = np.cos(u), np.sin(u)
+    mean_u = np.abs(ms * cu - mc * su)
+    var_u = vss * cu**2 + vcc * su**2 - 2.0 * vsc * su * cu
+    # a variance that is 0 in theory (coincident bearings) comes out at ±1e-17: below the tolerance it bounds nothing
+    if float(var_u.min()) <= _SPREAD_VARIANCE_TOLERANCE:
+        return math.inf, math.inf
+    k = float(np.max((mean_u + 1.0) / np.sqrt(var_u)))
+    dof = int(n_effective) - 1
+    rms = float(math.sqrt(np.mean(e**2)))
+    upper = rms * math.sqrt(dof / chi2_quantile(1.0 - float(confidence), dof))
+    return k * upper, k
+
+
+#: Below this variance (dimensionless, of ``sin(2φ − u)``) the bearings are taken as coincident: rounding leaves a
+#: variance that is 0 in theory at about 1e-17 (the bearings of one pixel column spread by 1e-6 rad give 4e-12).
+_SPREAD_VARIANCE_TOLERANCE = 1e-14

@@ -383,3 +383,32 @@ def test_resection_trusts_neither_a_wall_of_bearings_nor_far_points_behind_a_dep
         assert (error <= 3.0 * out[1]) is covers, (
             f"spread known: {covers}, error {math.degrees(error):.2f}°, σ {math.degrees(out[1]):.2f}°"
         )
+
+
+def test_at_the_reference_spot_without_depth_the_votes_own_spread_bounds_the_parallax(real) -> None:
+    """Issue 17's same-spot protocol on the real photos (no depth): 640×480 57° views at random yaws with lighting
+    changes, an odometry hypothesis drawn with σ 0.2 m / 10°. Without the bound the heading-only σ assumes the
+    displacement the odometry allows (≈ 8° at the default 3 m range: above ``max_sigma_rad``, so unreliable);
+    the votes agree to a fraction of a pixel, which bounds the parallax, and the step commits — never beyond 3σ."""
+    name, eq, ref, prepared = real
+    rng = np.random.default_rng([len(name), 17])
+    off = compass.CompassConfig(parallax_from_spread=False)
+    on_rel, off_rel, errors = 0, 0, []
+    for _ in range(24):
+        heading = rng.uniform(-math.pi, math.pi)
+        cam = photo.camera_view(eq, heading, 0.0, width_px=640, height_px=480, hfov_rad=math.radians(57.0))
+        img = photo.photometric(
+            cam.image_bgr, gain=rng.uniform(0.6, 1.4), gamma=rng.uniform(0.75, 1.3), noise_sigma=4.0, blur_sigma_px=0.7, rng=rng
+        )
+        q = Query(images=(CameraImage(img, cam.hfov_rad, cam.yaw_in_robot_rad),))
+        odo = Pose2(rng.normal(0.0, 0.2), rng.normal(0.0, 0.2), heading + rng.normal(0.0, math.radians(10.0)))
+        hyp = Hypotheses((Estimate.pose("odometry", odo, 0.2, 0.2, math.radians(10.0)),))
+        est = compass.estimate(ref, q, hyp, prepared=prepared)
+        off_rel += compass.estimate(ref, q, hyp, off, prepared=prepared).reliable
+        if est.reliable:
+            on_rel += 1
+            errors.append(_err(est, heading))
+            assert _err(est, heading) < 3.0 * est.sigma("theta")
+            assert est.diagnostics["parallax_bound_rad"] < est.diagnostics["sigma_parallax_rad"] + 1e-12
+    assert on_rel >= max(6, off_rel + 4), f"{name}: reliable {on_rel}/24 with the bound, {off_rel}/24 without"
+    assert float(np.median(errors)) <= math.radians(0.05)

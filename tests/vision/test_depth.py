@@ -1,0 +1,66 @@
+"""The parallax bound read from the heading votes' own spread (:func:`factorloc.vision.depth.spread_parallax_bound`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from factorloc.vision.depth import spread_parallax_bound
+
+HALF_FOV = math.radians(28.5)  # a 57° view
+
+
+def _parallax(phi: np.ndarray, normal: float, distance_m: float, step_m: float, direction: float) -> np.ndarray:
+    """The bearing change (rad, exact) of points on a plane (normal ``normal``, at ``distance_m``) seen at ``phi`` from
+    the origin, when the camera steps ``step_m`` towards ``direction``."""
+    r = distance_m / np.cos(phi - normal)
+    p = np.column_stack([r * np.cos(phi), r * np.sin(phi)])
+    q = p - step_m * np.array([math.cos(direction), math.sin(direction)])
+    return np.arctan2(q[:, 1], q[:, 0]) - phi
+
+
+def test_an_even_57_degree_view_gives_the_closed_form_ratio() -> None:
+    """Bearings spread evenly over ±h: the worst case is a sideways step against a wall straight ahead, where
+    every bearing turns by (d/D) cos²φ: k = mean(cos²φ) / std(cos²φ) = 13.3 for h = 28.5° (worked by hand from
+    the moments of cos 2φ and cos 4φ over the view)."""
+    phi = np.linspace(-HALF_FOV, HALF_FOV, 2001)
+    _, k = spread_parallax_bound(phi, np.full(phi.size, 1e-3), n_effective=30, confidence=0.99)
+    # the closed form of the worst case: (|M| + 1) / S at u = π/2, M = −mean cos 2φ, S = std cos 2φ
+    c = np.cos(2.0 * phi)
+    assert k == pytest.approx((abs(c.mean()) + 1.0) / c.std(), rel=1e-4)
+    assert k == pytest.approx(13.4, abs=0.1)
+
+
+def test_the_bound_covers_the_bias_of_any_plane_and_step() -> None:
+    """Noise-free votes from a plane seen after a step: the mode's bias never exceeds the bound, whatever the
+    plane's orientation and distance and the step's direction and length, and bunched bearings only widen it."""
+    rng = np.random.default_rng(3)
+    worst = 0.0
+    for _ in range(400):
+        centre = rng.uniform(-math.pi, math.pi)
+        width = rng.uniform(0.05, 1.0) * HALF_FOV
+        phi = centre + rng.uniform(-width, width, size=int(rng.integers(8, 40)))
+        normal = centre + rng.uniform(-0.6, 0.6)
+        delta = _parallax(phi, normal, rng.uniform(0.8, 8.0), rng.uniform(0.02, 0.4), rng.uniform(-math.pi, math.pi))
+        bias = float(delta.mean())
+        bound, k = spread_parallax_bound(phi, delta - bias, n_effective=len(phi), confidence=0.5)
+        assert abs(bias) <= bound * 1.02, f"bias {math.degrees(bias):.3f}° > bound {math.degrees(bound):.3f}° (k {k:.1f})"
+        worst = max(worst, abs(bias) / bound)
+    assert worst > 0.5  # the bound is attained up to the plane's and the step's finite size, not loose by design
+
+
+def test_the_upper_confidence_limit_widens_few_votes_more() -> None:
+    phi = np.linspace(-HALF_FOV, HALF_FOV, 40)
+    e = np.tile([1e-3, -1e-3], 20)
+    few, k = spread_parallax_bound(phi, e, n_effective=5, confidence=0.99)
+    many, k2 = spread_parallax_bound(phi, e, n_effective=30, confidence=0.99)
+    assert k == k2 and few > many > k * 1e-3
+
+
+def test_bearings_that_coincide_bound_nothing() -> None:
+    phi = np.full(12, 0.7)
+    assert spread_parallax_bound(phi, np.zeros(12), n_effective=12, confidence=0.99) == (math.inf, math.inf)
+    assert spread_parallax_bound(phi[:1], np.zeros(1), n_effective=1, confidence=0.99) == (math.inf, math.inf)
+    assert spread_parallax_bound(np.zeros(3), np.zeros(4), n_effective=3, confidence=0.99) == (math.inf, math.inf)
