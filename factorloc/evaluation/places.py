@@ -563,7 +563,8 @@ def _mcl_reports(q: object, belief: object, tracker: object, place_map: PlaceMap
 
     from factorloc.places import places_in_view, seed_of_prediction
 
-    multi, recognizer, cfg = tracker.multi, tracker.recognizer, tracker.config  # type: ignore[attr-defined]
+    multi, relocalizer = tracker.multi, tracker.relocalizer  # type: ignore[attr-defined]
+    recognizer, cfg = tracker.recognizer, tracker.config  # type: ignore[attr-defined]
     reports: list = []
     if belief is not None and starved < 2:
         ids = [pid for pid, _ in places_in_view(place_map, belief.pose, belief.covariance, cfg.choice)]  # type: ignore[attr-defined]
@@ -575,7 +576,7 @@ def _mcl_reports(q: object, belief: object, tracker: object, place_map: PlaceMap
             p = place_map[c.place_id]
             T = p.T_world_reference.compose(Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0))
             odo = Odometry(T, cfg.relocalize_sigma_m, cfg.relocalize_sigma_m, cfg.relocalize_sigma_rad)
-            run = multi.run_place(replace(q.query, odometry=odo), c.place_id)  # type: ignore[attr-defined]
+            run = relocalizer.run_place(replace(q.query, odometry=odo), c.place_id)  # type: ignore[attr-defined]
             reports.extend(run.localization.steps[1:])  # the place's steps, not its (made-up) odometry seed
     return reports
 

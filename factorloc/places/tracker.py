@@ -169,6 +169,14 @@ class TrackerConfig:
         re-localization alike), so that together they weigh as much as one (covariance intersection with equal
         weights, Julier and Uhlmann 1997: consistent whatever their correlation). False treats them as independent
         (over-confident when they are not).
+    widen_when_tracking
+        Whether the hierarchy's runs against the places in view of a prediction (tracking, and the confirmation of a
+        recognized pose) may widen ICP's global search to every heading and the whole search radius
+        (``localization.icp.global_init.widen``) when the window their seed bounds holds no reliable solution. False
+        (default): such a solution lies outside the seed's window, which is the prediction's 3σ region plus a
+        margin, so the gate against the prediction would drop it anyway (the searches were about a third of the
+        tracker's CPU; the figures with and without: ``docs/places.md``). Re-localization at recognized places keeps
+        ``localization`` as it is (a recognized heading can be far off).
     """
 
     odometry_model: OdometryModel = field(default_factory=_increment_model)
@@ -189,6 +197,7 @@ class TrackerConfig:
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
     share_query_error: bool = True
+    widen_when_tracking: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.odometry_model, OdometryModel):
@@ -275,6 +284,14 @@ class _Candidate:
     offset_m: float
 
 
+def _without_widening(config: Config) -> Config:
+    """``config`` with ICP's global search kept to the window its seed bounds (``global_init.widen`` off)."""
+    icp = config.icp
+    if not icp.global_init.widen:
+        return config
+    return replace(config, icp=replace(icp, global_init=replace(icp.global_init, widen=False)))
+
+
 def _refuted_check(candidate: _Candidate, n_consistent: int) -> Check:
     """``tracker.confirmation`` passed: the old chain's own places gave consistent factors on the query after an early
     recognition that disagreed with it; the recognized pose was an aliased place and is dropped."""
@@ -322,7 +339,11 @@ class Tracker:
             raise InputError("Tracker needs a PlaceMap with at least one place")
         self.place_map = place_map
         self.config = config or TrackerConfig()
-        self.multi = MultiPlaceLocalizer(place_map, self.config.localization)
+        loc = self.config.localization
+        #: The hierarchy against the places in view of a prediction (``widen_when_tracking``).
+        self.multi = MultiPlaceLocalizer(place_map, loc if self.config.widen_when_tracking else _without_widening(loc))
+        #: The hierarchy at recognized places (re-localization): ``localization`` as given.
+        self.relocalizer = self.multi if self.config.widen_when_tracking else MultiPlaceLocalizer(place_map, loc)
         self._recognizer: PlaceRecognizer | None = None
         p = gtsam.ISAM2Params()
         p.setRelinearizeThreshold(0.01)
@@ -711,7 +732,7 @@ class Tracker:
             seed_pose = place.T_world_reference.compose(T_place_query)
             s = cfg.relocalize_sigma_m
             seeded = replace(query, odometry=Odometry(seed_pose, s, s, cfg.relocalize_sigma_rad))
-            run = self.multi.run_place(seeded, c.place_id)
+            run = self.relocalizer.run_place(seeded, c.place_id)
             if run.localization.determined:
                 factors.extend(run.factors)
         if not factors:
