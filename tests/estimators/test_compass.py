@@ -144,6 +144,11 @@ def test_config_is_validated() -> None:
         compass.CompassConfig(query_scale=1.5)
     with pytest.raises(ConfigError, match="query_min_detect_px"):
         compass.CompassConfig(query_min_detect_px=-1)
+    for bad in (0.0, 1.0, math.nan):
+        with pytest.raises(ConfigError, match="spread_confidence"):
+            compass.CompassConfig(spread_confidence=bad)
+    with pytest.raises(ConfigError, match="spread_bound_gain"):
+        compass.CompassConfig(spread_bound_gain=0.0)
 
 
 def test_detection_scale_never_reduces_a_view_below_the_minimum_pixel_count() -> None:
