@@ -234,9 +234,10 @@ def spread_parallax_bound(
     ``rms(δ − mean δ)``; it is taken at its one-sided upper confidence limit ``rms · √(n / χ²_n(1 − confidence))``
     (``n = n_effective − 1`` degrees of freedom: the mode took one).
 
-    A model, not a theorem for every scene: points on a circle through both camera positions see one parallax
-    (the inscribed-angle theorem) and show no spread at all. Indoors that is a wall curving around a camera
-    standing at it.
+    A model, not a theorem for every scene: it is first order in ``d/D`` (a parallax of tens of degrees can exceed
+    it, by up to 2.2× on the simulated views of ``docs/calibration/vision.md``, where the bound itself is then tens
+    of degrees), and points on a circle through both camera positions see one parallax (the inscribed-angle
+    theorem) and show no spread at all. Indoors that is a wall curving around a camera standing at it.
 
     Parameters
     ----------
