@@ -642,7 +642,9 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
     bound, bound_k = math.inf, math.inf
     if config.parallax_from_spread and n_in >= config.min_inliers:
         # the parallax a displacement leaves in the mode is bounded by what it leaves in the residuals
-        bound, bound_k = spread_parallax_bound(az_r[ri[inliers]], resid, n_effective=n_eff, confidence=config.spread_confidence)
+        bound, bound_k = spread_parallax_bound(
+            az_r[ri[inliers]], resid, n_effective=n_eff, confidence=config.spread_confidence, band_rad=config.inlier_band_rad
+        )
         bound *= config.spread_bound_gain
         sigma_par = min(sigma_par, bound)
     # spread of the inliers, a cluster term (a few coincident votes locate the mode only to about band/√n),

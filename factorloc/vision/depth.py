@@ -215,7 +215,7 @@ _BOUND_STEPS = 360
 
 
 def spread_parallax_bound(
-    bearings_rad: np.ndarray, residuals_rad: np.ndarray, *, n_effective: int, confidence: float
+    bearings_rad: np.ndarray, residuals_rad: np.ndarray, *, n_effective: int, confidence: float, band_rad: float = math.inf
 ) -> tuple[float, float]:
     """How far (rad) the mode of heading votes can be turned by a displacement its own residuals do not show.
 
@@ -232,7 +232,10 @@ def spread_parallax_bound(
     ahead: every bearing turns by nearly the same angle); bearings bunched in one direction give a larger
     ``k``, and ``inf`` when they coincide. Noise only adds to the residuals, so their rms bounds
     ``rms(δ − mean δ)``; it is taken at its one-sided upper confidence limit ``rms · √(n / χ²_n(1 − confidence))``
-    (``n = n_effective − 1`` degrees of freedom: the mode took one).
+    (``n = n_effective − 1`` degrees of freedom: the mode took one). The residuals are those of the inliers, votes
+    within ``band_rad`` of the mode: a spread wider than the band is cut to it, and its rms then says nothing about
+    the parallax (a 360° view from 0.3 m away: every vote's parallax differs by degrees, the band keeps a slice of
+    them). So the bound holds only while the band holds the spread's 3σ (``3 · rms_upper ≤ band_rad``), else inf.
 
     A model, not a theorem for every scene: it is first order in ``d/D`` (a parallax of tens of degrees can exceed
     it, by up to 2.2× on the simulated views of ``docs/calibration/vision.md``, where the bound itself is then tens
@@ -249,11 +252,14 @@ def spread_parallax_bound(
         The number of independent votes the residuals stand for (≥ 2).
     confidence
         Of the upper limit on the residuals' rms, in (0, 1).
+    band_rad
+        Half-width of the band that chose the inliers (rad; inf: the residuals were not cut).
 
     Returns
     -------
     (bound_rad, k)
-        ``k · rms_upper`` and ``k`` (``inf`` for both when the bearings bound nothing).
+        ``k · rms_upper`` and ``k`` (``inf`` for both when the bearings bound nothing; the bound alone is inf when
+        the band may have cut the spread).
     """
     from factorloc.stats import chi2_quantile
 
@@ -276,6 +282,8 @@ def spread_parallax_bound(
     dof = int(n_effective) - 1
     rms = float(math.sqrt(np.mean(e**2)))
     upper = rms * math.sqrt(dof / chi2_quantile(1.0 - float(confidence), dof))
+    if 3.0 * upper > band_rad:
+        return math.inf, k
     return k * upper, k
 
 

@@ -64,3 +64,16 @@ def test_bearings_that_coincide_bound_nothing() -> None:
     assert spread_parallax_bound(phi, np.zeros(12), n_effective=12, confidence=0.99) == (math.inf, math.inf)
     assert spread_parallax_bound(phi[:1], np.zeros(1), n_effective=1, confidence=0.99) == (math.inf, math.inf)
     assert spread_parallax_bound(np.zeros(3), np.zeros(4), n_effective=3, confidence=0.99) == (math.inf, math.inf)
+
+
+def test_a_spread_the_inlier_band_may_have_cut_bounds_nothing() -> None:
+    """Votes spread across the whole inlier band: the band kept a slice of a wider spread (a 360° view from a step
+    away), whose rms says nothing about the parallax; the bound then holds only while 3 × its rms fits the band."""
+    phi = np.linspace(-math.pi, math.pi, 60, endpoint=False)
+    band = math.radians(1.5)
+    cut = np.random.default_rng(1).uniform(-band, band, 60)
+    bound, k = spread_parallax_bound(phi, cut, n_effective=30, confidence=0.99, band_rad=band)
+    assert bound == math.inf and math.isfinite(k)
+    tight = 0.02 * cut
+    bound, k2 = spread_parallax_bound(phi, tight, n_effective=30, confidence=0.99, band_rad=band)
+    assert k2 == k and 3.0 * bound / k < band
