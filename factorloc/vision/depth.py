@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from factorloc.errors import InputError
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Reference
 from factorloc.vision.strips import Grid
@@ -265,6 +266,10 @@ def spread_parallax_bound(
 
     phi = np.asarray(bearings_rad, dtype=np.float64).ravel()
     e = np.asarray(residuals_rad, dtype=np.float64).ravel()
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(e))):
+        raise InputError("spread_parallax_bound: bearings_rad and residuals_rad must be finite")
+    if not 0.0 < confidence < 1.0:
+        raise InputError(f"spread_parallax_bound: confidence must be in (0, 1), got {confidence!r}")
     if phi.size < 2 or phi.size != e.size or n_effective < 2:
         return math.inf, math.inf
     s2, c2 = np.sin(2.0 * phi), np.cos(2.0 * phi)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from factorloc.errors import InputError
 from factorloc.vision.depth import spread_parallax_bound
 
 HALF_FOV = math.radians(28.5)  # a 57° view
@@ -77,3 +78,13 @@ def test_a_spread_the_inlier_band_may_have_cut_bounds_nothing() -> None:
     tight = 0.02 * cut
     bound, k2 = spread_parallax_bound(phi, tight, n_effective=30, confidence=0.99, band_rad=band)
     assert k2 == k and 3.0 * bound / k < band
+
+
+def test_bad_input_is_refused_by_name() -> None:
+    phi = np.linspace(-HALF_FOV, HALF_FOV, 10)
+    with pytest.raises(InputError, match="finite"):
+        spread_parallax_bound(phi, np.full(10, math.nan), n_effective=10, confidence=0.99)
+    with pytest.raises(InputError, match="finite"):
+        spread_parallax_bound(np.append(phi[:-1], math.inf), np.zeros(10), n_effective=10, confidence=0.99)
+    with pytest.raises(InputError, match="confidence"):
+        spread_parallax_bound(phi, np.zeros(10), n_effective=10, confidence=1.0)
