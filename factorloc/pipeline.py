@@ -107,6 +107,25 @@ class Localizer:
             self._prepared[s.name] = s.prepare(reference)
             self.prepare_seconds[s.name] = time.perf_counter() - t0
 
+    def with_config(self, config: Config) -> Localizer:
+        """A Localizer on the same reference with ``config``'s default steps, sharing this one's prepared references.
+
+        For a ``config`` that differs only in what the steps read when they estimate (e.g.
+        ``icp.global_init.widen``), not in how they prepare a reference: the caller vouches for that. The steps
+        must be the same ones by name (:class:`~factorloc.errors.InputError` otherwise).
+        """
+        if not isinstance(config, Config):
+            raise InputError(f"config must be a factorloc.Config, got {type(config).__name__}")
+        steps = default_steps(config)
+        if [s.name for s in steps] != [s.name for s in self.steps]:
+            raise InputError(
+                f"with_config needs the same steps: {[s.name for s in steps]} against {[s.name for s in self.steps]}"
+            )
+        other = object.__new__(Localizer)
+        other.reference, other.config, other.steps, other.strategy = self.reference, config, steps, strategy_for(config)
+        other.prepare_seconds, other._prepared = self.prepare_seconds, self._prepared
+        return other
+
     def localize(self, query: Query, *, seeded: bool = True) -> Localization:
         """Run the hierarchy on ``query``.
 

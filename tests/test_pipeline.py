@@ -255,3 +255,21 @@ def test_kidnapped_robot_whose_seeded_icp_fits_elsewhere_is_not_localized_confid
     assert odo.status is StepStatus.INCONSISTENT
     err = metrics.pose_errors(loc.pose.as_array()[None], sq.truth.as_array()[None])
     assert math.hypot(err[0, 0], err[0, 1]) < 0.1 and not metrics.confidently_wrong(err, loc.covariance[None])[0]
+
+
+def test_with_config_shares_the_prepared_references_and_needs_the_same_steps() -> None:
+    """A second configuration on one reference's work (the tracker's runs without ICP's widened search): the same
+    prepared objects, the new configuration's steps, the same estimates where the two configurations agree."""
+    ref = Reference(scan=Scan(np.column_stack([np.linspace(-2.0, 2.0, 41), np.full(41, 1.5)])))
+    base = Localizer(ref)
+    narrow = Config.from_dict({"icp": {"global_init": {"widen": False}}})
+    other = base.with_config(narrow)
+    assert other._prepared is base._prepared and other.prepare_seconds is base.prepare_seconds
+    assert other.config is narrow and not other.steps[-1].config.global_init.widen and base.steps[-1].config.global_init.widen
+    q = Query(scan=Scan(ref.scan.points_m - [0.05, 0.0]), odometry=Odometry(Pose2(0.05, 0.0, 0.0), 0.1, 0.1, 0.05))
+    a, b = base.localize(q), other.localize(q)
+    assert np.array_equal(a.pose.as_array(), b.pose.as_array())
+    with pytest.raises(InputError, match="same steps"):
+        base.with_config(Config.from_dict({"compass": {"enabled": False}}))
+    with pytest.raises(InputError, match="Config"):
+        base.with_config({"icp": {}})

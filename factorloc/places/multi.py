@@ -140,7 +140,7 @@ class MultiPlaceLocalizer:
     """Localizes queries against several places of a :class:`PlaceMap` at once (see the module docstring).
 
     One :class:`~factorloc.pipeline.Localizer` per place is built on first use and kept, so the reference work
-    (KD-trees, keypoints) is done once per place.
+    (KD-trees, keypoints) is done once per place; :meth:`sharing` gives a second configuration on the same work.
     """
 
     def __init__(self, place_map: PlaceMap, config: Config | None = None, *, strategy: FusionStrategy | None = None) -> None:
@@ -150,11 +150,22 @@ class MultiPlaceLocalizer:
         self.config = config or Config()
         self.strategy = strategy or strategy_for(self.config)
         self._localizers: dict[str, Localizer] = {}
+        self._prepared_by: MultiPlaceLocalizer | None = None
+
+    def sharing(self, config: Config) -> MultiPlaceLocalizer:
+        """The places with ``config``, on this localizer's prepared references (:meth:`Localizer.with_config`: for a
+        ``config`` that differs only in what the steps read when they estimate)."""
+        other = MultiPlaceLocalizer(self.place_map, config)
+        other._prepared_by = self
+        return other
 
     def localizer(self, place_id: str) -> Localizer:
         """The (cached) hierarchy against one place."""
         if place_id not in self._localizers:
-            self._localizers[place_id] = Localizer(self.place_map[place_id].reference, self.config, strategy=self.strategy)
+            if self._prepared_by is not None:
+                self._localizers[place_id] = self._prepared_by.localizer(place_id).with_config(self.config)
+            else:
+                self._localizers[place_id] = Localizer(self.place_map[place_id].reference, self.config, strategy=self.strategy)
         return self._localizers[place_id]
 
     def run_place(self, query: Query, place_id: str) -> PlaceRun:

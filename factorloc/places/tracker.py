@@ -340,10 +340,11 @@ class Tracker:
         self.place_map = place_map
         self.config = config or TrackerConfig()
         loc = self.config.localization
-        #: The hierarchy against the places in view of a prediction (``widen_when_tracking``).
-        self.multi = MultiPlaceLocalizer(place_map, loc if self.config.widen_when_tracking else _without_widening(loc))
         #: The hierarchy at recognized places (re-localization): ``localization`` as given.
-        self.relocalizer = self.multi if self.config.widen_when_tracking else MultiPlaceLocalizer(place_map, loc)
+        self.relocalizer = MultiPlaceLocalizer(place_map, loc)
+        #: The hierarchy against the places in view of a prediction (``widen_when_tracking``), on the same
+        #: prepared references.
+        self.multi = self.relocalizer if self.config.widen_when_tracking else self.relocalizer.sharing(_without_widening(loc))
         self._recognizer: PlaceRecognizer | None = None
         p = gtsam.ISAM2Params()
         p.setRelinearizeThreshold(0.01)

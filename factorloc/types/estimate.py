@@ -117,10 +117,9 @@ _UPPER = {k: [(i, j) for i in range(k) for j in range(i + 1, k)] for k in (1, 2,
 def _exactly_symmetric(c: list[list[float]], k: int) -> bool:
     """Whether ``c`` (k×k finite floats) equals its symmetrized mean ``0.5·c + 0.5·cᵀ`` bit for bit by construction:
     exactly symmetric, and every entry zero or at least 2^-1021 in magnitude."""
-    if not all(c[i][j] == c[j][i] for i, j in _UPPER.get(k, ())) or k not in _UPPER:
+    if k not in _UPPER or not all(c[i][j] == c[j][i] for i, j in _UPPER[k]):
         return False
-    flat = [x for row in c for x in row]
-    return min(map(abs, flat)) >= _HALF_EXACT or all(x == 0.0 or abs(x) >= _HALF_EXACT for x in flat)
+    return all(x == 0.0 or abs(x) >= _HALF_EXACT for row in c for x in row)
 
 
 #: A correlation matrix (k ≤ 3) whose determinant reaches this has its smallest eigenvalue ≥ 1e-6 / 9 (see

@@ -213,6 +213,9 @@ def uncorrected_parallax_sigma(
 
 #: Steps of the worst-case search of :func:`spread_parallax_bound` over ``u ∈ [0, π)`` (0.5° apart).
 _BOUND_STEPS = 360
+#: Below this variance (dimensionless, of ``sin(2φ − u)``) the bearings are taken as coincident: rounding leaves a
+#: variance that is 0 in theory at about 1e-17 (the bearings of one pixel column spread by 1e-6 rad give 4e-12).
+_SPREAD_VARIANCE_TOLERANCE = 1e-14
 
 
 def spread_parallax_bound(
@@ -290,8 +293,3 @@ def spread_parallax_bound(
     if 3.0 * upper > band_rad:
         return math.inf, k
     return k * upper, k
-
-
-#: Below this variance (dimensionless, of ``sin(2φ − u)``) the bearings are taken as coincident: rounding leaves a
-#: variance that is 0 in theory at about 1e-17 (the bearings of one pixel column spread by 1e-6 rad give 4e-12).
-_SPREAD_VARIANCE_TOLERANCE = 1e-14

@@ -92,6 +92,8 @@ def test_tracking_runs_search_the_predictions_window_and_relocalization_the_whol
     assert tracker.config.localization.icp.global_init.widen
     assert not tracker.multi.config.icp.global_init.widen
     assert tracker.relocalizer.config is tracker.config.localization
+    pid = next(iter(tracker.relocalizer._localizers))  # a place both used: its reference prepared once
+    assert tracker.multi.localizer(pid)._prepared is tracker.relocalizer.localizer(pid)._prepared
     both = Tracker(place_map, TrackerConfig(widen_when_tracking=True))
     assert both.relocalizer is both.multi and both.multi.config.icp.global_init.widen
     # the same track either way on this drive (seed 11, a kidnapping): the same states, poses within a quarter of their
