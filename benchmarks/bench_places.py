@@ -14,6 +14,7 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --json out.json
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --folds            # leave-one-log-out D2 radius
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --cover 0.9  # its 1 m grid plus places covering it
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 10 --every 20  # after ICP verification of the top 10
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --rank-by submap_match   # scan-to-submap matching
@@ -59,6 +60,9 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="*", default=[201, 202, 203])
     ap.add_argument("--modality", choices=["scan", "panorama", "both"], default="scan", help="what the simulated queries sense")
     ap.add_argument("--queries", type=int, default=200)
+    ap.add_argument(
+        "--cover", type=float, default=None, help="with --sim: add places until every free pose is within this many m of one"
+    )
     ap.add_argument("--verify", type=int, default=0, help="recall after ICP verification of the top N (hloc pattern)")
     ap.add_argument(
         "--rank-by", choices=["shape_distribution", "scan_context", "submap_match"], default=RecognitionConfig().rank_by
@@ -96,22 +100,24 @@ def main() -> None:
         return
     rows = []
     print(
-        f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'s':>6} "
-        f"{'cpu ms/q':>8}"
+        f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'R@1rel':>6} "
+        f"{'R@5rel':>6} {'s':>6} {'cpu ms/q':>8}"
     )
     for name in args.logs:
         t0 = time.perf_counter()
         log = read_laser_log(args.data / f"{name}.sort.bag")
-        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
+        full = read_relations(args.data / f"{name}.relations")
+        rel = full.subset(args.every_of[name])
         c0 = time.process_time()
-        res = recognition_recall(log, rel, cfg, name=name, submap_half_path_m=args.half_path)
+        res = recognition_recall(log, rel, cfg, name=name, submap_half_path_m=args.half_path, related=full)
         cpu = time.process_time() - c0
         row = res.to_dict() | {"seconds": time.perf_counter() - t0, "cpu_s_per_query": cpu / max(res.ranks.size, 1)}
         rows.append(row)
         print(
             f"{name:<10} {row['places']:>6} {row['loop_relations']:>6} {100 * row['recall_at_1']:>5.1f}% "
             f"{100 * row['recall_at_5']:>5.1f}% {row['facing_relations']:>6} {100 * row['recall_at_1_facing']:>5.1f}% "
-            f"{100 * row['recall_at_5_facing']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
+            f"{100 * row['recall_at_5_facing']:>5.1f}% {100 * row['recall_at_1_related']:>5.1f}% "
+            f"{100 * row['recall_at_5_related']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
         )
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
@@ -141,13 +147,19 @@ def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
 
     world = apartment()
     width = 0 if args.modality == "scan" else 512
-    place_map = simulated_place_map(world, 1.0, seed=0, panorama_width_px=width)
-    print(f"{args.modality}: {'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6}")
+    place_map = simulated_place_map(world, 1.0, seed=0, panorama_width_px=width, cover_m=args.cover)
+    print(
+        f"{args.modality}: {'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6} {'covered':>7} "
+        f"{'R@1cov':>6} {'R@5cov':>6}"
+    )
     for seed in args.seeds:
         r = simulated_recall(
             world, place_map, args.queries, seed, cfg, panorama_width_px=width, with_scan=args.modality == "both"
         )
-        print(f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}%")
+        print(
+            f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}% "
+            f"{100 * r.coverage:>6.1f}% {100 * r.recall_at_covered(1):>5.1f}% {100 * r.recall_at_covered(5):>5.1f}%"
+        )
 
 
 def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:

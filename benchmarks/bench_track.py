@@ -69,6 +69,12 @@ def main() -> None:
     ap.add_argument("--world", default="apartment", help="with --tour: apartment or office (or a world file)")
     ap.add_argument("--place-spacing", type=float, default=1.5, help="with --tour: grid spacing of the places in a room (m)")
     ap.add_argument(
+        "--cover",
+        type=float,
+        default=None,
+        help="without --tour: add places to the 1 m grid until every free pose is this near one (m)",
+    )
+    ap.add_argument(
         "--recognize-after",
         type=int,
         default=TrackerConfig().recognize_after,
@@ -87,7 +93,7 @@ def main() -> None:
 
         place_map = room_places(world, args.place_spacing, seed=0)
     else:
-        place_map = simulated_place_map(world, 1.0, seed=0)
+        place_map = simulated_place_map(world, 1.0, seed=0, cover_m=args.cover)
     print(f"{world.name}: {len(place_map)} places ({'rooms' if args.tour else 'grid'})")
     rows = []
     head = f"{'seed':>4} {'n':>4} {'RMSE cm':>8} {'RMSE deg':>8} {'all cm':>7} {'wrong':>6} {'flagged':>7}"

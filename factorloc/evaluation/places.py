@@ -12,6 +12,13 @@ correct place among the top k.
 A relation none of whose correct places is in the map (a run around ``t1`` shorter than the spacing, or all
 within the excluded window) still counts, as a miss: the map is built the same way for every log.
 
+That rule counts a place of *another pass* through the same spot as wrong, even when the ground truth itself
+relates that pass to ``t2``. So each relation also gets a second rank (``RecallResult.ranks_related``): the first
+retrieved place that is correct for ``(t1, t2)`` *or* for any other loop relation of the scan at ``t2`` in the
+ground truth (``(t1', t2)`` or ``(t2, t1')``, its correct places found by the same rule around ``t1'``). It is a
+figure beside the issue's, never instead of it: a pass the ground truth does not relate to ``t2`` still counts
+as wrong.
+
 With ``RecognitionConfig(rank_by="submap_match")`` each place holds a local submap: the scans whose odometry path
 length lies within ``submap_half_path_m`` of the place's, stitched by odometry into its frame
 (:func:`path_submaps`). A place whose submap holds a scan taken within ``exclude_window_s / 2`` of ``t2`` is left
@@ -151,7 +158,9 @@ class RecallResult:
 
     ``ranks[i]`` is the 1-based rank of the first correct place retrieved for loop relation ``i`` (``inf``: none
     among the top ``max_k``); ``heading_change_rad[i]`` the relation's |Δθ| (a 180° scanner sees little of a
-    place it comes back to facing the other way); ``places`` the size of the map.
+    place it comes back to facing the other way); ``places`` the size of the map. ``ranks_related[i]`` (≤
+    ``ranks[i]``) the rank of the first place correct for this relation or for another loop relation of the same
+    query scan in the ground truth (the module docstring); None when not computed.
     """
 
     log: str
@@ -159,11 +168,22 @@ class RecallResult:
     ranks: np.ndarray
     heading_change_rad: np.ndarray
     max_k: int
+    ranks_related: np.ndarray | None = None
 
-    def recall_at(self, k: int) -> float:
+    def _check_k(self, k: int) -> None:
         if not 1 <= k <= self.max_k:
             raise InputError(f"k must be in [1, {self.max_k}], got {k!r}")
+
+    def recall_at(self, k: int) -> float:
+        self._check_k(k)
         return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+    def recall_at_related(self, k: int) -> float:
+        """recall@k when a place of any pass the ground truth relates to the query scan counts (module docstring)."""
+        self._check_k(k)
+        if self.ranks_related is None:
+            raise InputError("this RecallResult has no ranks_related (computed by recognition_recall)")
+        return float(np.mean(self.ranks_related <= k)) if self.ranks_related.size else math.nan
 
     def recall_at_facing(self, k: int, max_heading_change_rad: float = math.pi / 2) -> float:
         """recall@k over the relations whose heading changed by less than ``max_heading_change_rad``."""
@@ -171,16 +191,21 @@ class RecallResult:
         return float(np.mean(self.ranks[sel] <= k)) if sel.any() else math.nan
 
     def to_dict(self) -> dict[str, object]:
+        k5 = min(5, self.max_k)
         return {
             "log": self.log,
             "places": self.places,
             "loop_relations": int(self.ranks.size),
             "recall_at_1": self.recall_at(1),
-            "recall_at_5": self.recall_at(min(5, self.max_k)),
+            "recall_at_5": self.recall_at(k5),
             "facing_relations": int(np.sum(self.heading_change_rad < math.pi / 2)),
             "recall_at_1_facing": self.recall_at_facing(1),
-            "recall_at_5_facing": self.recall_at_facing(min(5, self.max_k)),
-        }
+            "recall_at_5_facing": self.recall_at_facing(k5),
+        } | (
+            {}
+            if self.ranks_related is None
+            else {"recall_at_1_related": self.recall_at_related(1), "recall_at_5_related": self.recall_at_related(k5)}
+        )
 
 
 def recognition_recall(
@@ -197,12 +222,15 @@ def recognition_recall(
     tolerance_s: float = 2e-3,
     indices: Sequence[int] | None = None,
     submap_half_path_m: float = 4.0,
+    related: Relations | None = None,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 
     ``indices`` restricts to those relations (a subset for tests); only loop relations are scored.
     ``submap_half_path_m``: the half-length (m of odometry path) of the places' local submaps when the config ranks
-    by ``"submap_match"`` (:func:`path_submaps`); unused otherwise.
+    by ``"submap_match"`` (:func:`path_submaps`); unused otherwise. ``related``: the ground truth searched for the
+    other loop relations of each query scan (``RecallResult.ranks_related``); default ``relations`` — pass the
+    whole file when ``relations`` is a subset.
     """
     place_map, place_t = places_along_log(log, spacing_m)
     spans = np.column_stack([place_t, place_t])
@@ -218,48 +246,92 @@ def recognition_recall(
         a, b = span_of[pid]
         return abs(time_of[pid] - t2) <= half or (a <= t2 + half and b >= t2 - half)
 
-    ranks, dth = [], []
+    truth = relations if related is None else related
+    ends = np.concatenate([np.asarray(truth.t1_s, dtype=np.float64), np.asarray(truth.t2_s, dtype=np.float64)])
+    others = np.concatenate([np.asarray(truth.t2_s, dtype=np.float64), np.asarray(truth.t1_s, dtype=np.float64)])
+
+    def first_within(cands: Sequence[object], windows: Sequence[tuple[float, float]]) -> float:
+        for r, c in enumerate(cands, start=1):
+            t = time_of[c.place_id]  # type: ignore[attr-defined]
+            if any(lo <= t <= hi for lo, hi in windows):
+                return float(r)
+        return math.inf
+
+    ranks, ranks_related, dth = [], [], []
     for i in range(len(relations)) if indices is None else indices:
         t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
         if log.odometry.distance_between(t1, t2)[0] < local_threshold_m:
             continue
-        lo, hi = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
+        window = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
         query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
         cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: excluded(pid, t2))
-        rank = math.inf
-        for r, c in enumerate(cands, start=1):
-            if lo <= time_of[c.place_id] <= hi:
-                rank = r
-                break
-        ranks.append(rank)
+        ranks.append(first_within(cands, [window]))
+        windows = [window]
+        t_lo, t_hi = float(log.odometry.stamps_s[0]), float(log.odometry.stamps_s[-1])
+        for t_other in np.unique(others[np.abs(ends - t2) <= tolerance_s]).tolist():
+            if abs(t_other - t1) <= tolerance_s or not t_lo <= t_other <= t_hi:
+                continue
+            if log.odometry.distance_between(t_other, t2)[0] >= local_threshold_m:
+                windows.append(correct_window_s(log, t_other, neighbourhood_m, tolerance_s))
+        ranks_related.append(first_within(cands, windows))
         dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
-    return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), max_k)
+    return RecallResult(
+        name or log.source,
+        len(place_map),
+        np.array(ranks, dtype=np.float64),
+        np.array(dth),
+        max_k,
+        np.array(ranks_related, dtype=np.float64),
+    )
 
 
 # --------------------------------------------------------------------------
 # The simulator
 # --------------------------------------------------------------------------
 def simulated_place_map(
-    world: object, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
+    world: object,
+    spacing_m: float = 1.0,
+    seed: int = 0,
+    clearance_m: float = 0.3,
+    *,
+    panorama_width_px: int = 0,
+    cover_m: float | None = None,
 ) -> PlaceMap:
-    """A place on every free node of a ``spacing_m`` grid of a simulated world: :func:`factorloc.sim.track.grid_places`
-    (kept here for the callers of the first version; :func:`factorloc.sim.track.room_places` puts places in rooms)."""
+    """A place on every free node of a ``spacing_m`` grid of a simulated world, and with ``cover_m`` the places that
+    bring every free pose within ``cover_m`` of one: :func:`factorloc.sim.track.grid_places` (kept here for the
+    callers of the first version; :func:`factorloc.sim.track.room_places` puts places in rooms)."""
     from factorloc.sim.track import grid_places
 
-    return grid_places(world, spacing_m, seed, clearance_m, panorama_width_px=panorama_width_px)  # type: ignore[arg-type]
+    return grid_places(world, spacing_m, seed, clearance_m, panorama_width_px=panorama_width_px, cover_m=cover_m)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
 class SimulatedRecall:
     """Place recognition on simulated queries: ``ranks`` of the first correct place (``inf``: not in the top
-    ``max_k``); a place is correct when it lies within ``neighbourhood_m`` of the query's true position."""
+    ``max_k``); a place is correct when it lies within ``neighbourhood_m`` of the query's true position.
+    ``covered[i]``: whether any place of the map is correct for query ``i`` at all (a query with none is a miss
+    of the map's coverage, not of the recognizer)."""
 
     ranks: np.ndarray
     max_k: int
     seed: int
+    covered: np.ndarray | None = None
 
     def recall_at(self, k: int) -> float:
         return float(np.mean(self.ranks <= k)) if self.ranks.size else math.nan
+
+    @property
+    def coverage(self) -> float:
+        """The share of queries with a correct place in the map."""
+        if self.covered is None:
+            raise InputError("this SimulatedRecall has no coverage (computed by simulated_recall)")
+        return float(np.mean(self.covered)) if self.covered.size else math.nan
+
+    def recall_at_covered(self, k: int) -> float:
+        """recall@k over the queries with a correct place in the map."""
+        if self.covered is None:
+            raise InputError("this SimulatedRecall has no coverage (computed by simulated_recall)")
+        return float(np.mean(self.ranks[self.covered] <= k)) if self.covered.any() else math.nan
 
 
 def simulated_recall(
@@ -285,7 +357,7 @@ def simulated_recall(
     rng = np.random.default_rng(seed)
     recognizer = PlaceRecognizer(place_map, config)
     pos = place_map.positions_m()
-    ranks = []
+    ranks, covered = [], []
     for i in range(n_queries):
         T = sample_free_pose(world, rng, clearance_m)  # type: ignore[arg-type]
         if panorama_width_px > 0:
@@ -295,13 +367,14 @@ def simulated_recall(
         else:
             q = Query(scan=render_scan(world, T, rng=rng), id=f"q{i}")  # type: ignore[arg-type]
         ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
+        covered.append(bool(ok))
         rank = math.inf
         for r, c in enumerate(recognizer.candidates(q, max_k), start=1):
             if c.place_id in ok:
                 rank = r
                 break
         ranks.append(rank)
-    return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed)
+    return SimulatedRecall(np.array(ranks, dtype=np.float64), max_k, seed, np.array(covered, dtype=bool))
 
 
 def simulated_track(

@@ -7,7 +7,9 @@ the corridor is a room too, ``room.corridor``): :func:`rooms` lists them, :func:
   ``spacing_m`` grid centred in each room's box that are free (``clearance_m``), at least one per room (the free
   point nearest the room's centre when no node is free), each with a 360° laser scan
   (:func:`factorloc.sim.render_scan`, the real-lidar error model) taken at a random heading and, optionally, a
-  rendered panorama. :func:`grid_places` is the same over one grid of the whole plan, rooms ignored.
+  rendered panorama. :func:`grid_places` is the same over one grid of the whole plan, rooms ignored; with
+  ``cover_m`` it adds places until every free pose lies within ``cover_m`` of one (a grid leaves the free space
+  along walls and in narrow passages farther than that from its free nodes).
 * :func:`tour_path` — a robot touring the rooms: from its room to the nearest not yet visited one (of the two
   nearest, drawn at random), to a random free point in it, along the shortest collision-free path of an
   8-connected occupancy grid (A*, ``planner_resolution_m``) shortened by line of sight, driven by
@@ -55,6 +57,7 @@ __all__ = [
     "TRACK_FAULTS",
     "TrackConfig",
     "generate_track",
+    "covering_points",
     "grid_places",
     "plan_path",
     "random_track",
@@ -158,12 +161,58 @@ def room_places(
     return PlaceMap(places)
 
 
+#: Lattice step (m) of the free points that :func:`grid_places` covers with ``cover_m``: a free pose is at most
+#: half a diagonal of it (0.071 m) from the nearest lattice point.
+COVER_LATTICE_M = 0.1
+#: Tolerance (m) of the covering test: a lattice point exactly ``cover_m`` from a place (lattice distances can be
+#: exactly that in theory) counts as covered whatever the rounding of the distance.
+COVER_TOLERANCE_M = 1e-9
+
+
+def covering_points(world: World, placed_xy: np.ndarray, cover_m: float, clearance_m: float = 0.3) -> np.ndarray:
+    """The points (K×2, world frame, m) to add to ``placed_xy`` (N×2) so that every free point of the plan (free
+    at ``clearance_m``, on a :data:`COVER_LATTICE_M` lattice) lies within ``cover_m`` of a place: greedy
+    farthest-point insertion (each new point is the free lattice point farthest from all places so far; ties: the
+    first in row order), a 2-approximation of the fewest such points (Gonzalez 1985, k-centre)."""
+    if isinstance(cover_m, bool) or not (isinstance(cover_m, (int, float)) and math.isfinite(cover_m) and cover_m > 0):
+        raise InputError(f"cover_m must be a finite number > 0, got {cover_m!r}")
+    r = float(cover_m)
+    placed = np.asarray(placed_xy, dtype=np.float64)
+    if placed.size and (placed.ndim != 2 or placed.shape[1] != 2 or not np.all(np.isfinite(placed))):
+        raise InputError(f"placed_xy must be finite N×2 positions (m), got shape {placed.shape}")
+    placed = placed.reshape(-1, 2)
+    x0, y0, x1, y1 = world.bounds_xy
+    h = COVER_LATTICE_M
+    xs, ys = np.arange(x0 + h / 2, x1, h), np.arange(y0 + h / 2, y1, h)
+    lattice = np.column_stack([np.tile(xs, len(ys)), np.repeat(ys, len(xs))])
+    free = lattice[world.is_free(lattice, clearance_m)]
+    if len(free) == 0:
+        return np.zeros((0, 2))
+    d = np.full(len(free), np.inf)
+    for p in placed:
+        d = np.minimum(d, np.hypot(*(free - p).T))
+    added = []
+    while d.max() > r + COVER_TOLERANCE_M:
+        p = free[int(np.argmax(d))]
+        added.append(p)
+        d = np.minimum(d, np.hypot(*(free - p).T))
+    return np.array(added).reshape(-1, 2)
+
+
 def grid_places(
-    world: World, spacing_m: float = 1.0, seed: int = 0, clearance_m: float = 0.3, *, panorama_width_px: int = 0
+    world: World,
+    spacing_m: float = 1.0,
+    seed: int = 0,
+    clearance_m: float = 0.3,
+    *,
+    panorama_width_px: int = 0,
+    cover_m: float | None = None,
 ) -> PlaceMap:
     """A place on every free node of one ``spacing_m`` grid over the plan's bounds (ids ``g000``, …), each with a
     360° laser scan taken at a random heading (and a panorama with ``panorama_width_px`` > 0); covariance as in
-    :func:`room_places`. Reproducible from ``seed``."""
+    :func:`room_places`. With ``cover_m``, places at the :func:`covering_points` follow the grid's (the grid's
+    places, their scans and headings unchanged): every free pose then lies within ``cover_m`` (+ 0.071 m, half the
+    lattice's diagonal) of a place. Reproducible from ``seed``."""
     from factorloc.places import Place, PlaceMap
 
     spacing = _check_spacing(spacing_m)
@@ -174,6 +223,8 @@ def grid_places(
     ys = np.arange(y0 + spacing / 2, y1, spacing)
     grid = np.array([(x, y) for y in ys for x in xs])
     free = grid[world.is_free(grid, clearance_m)]
+    if cover_m is not None:
+        free = np.concatenate([free, covering_points(world, free, cover_m, clearance_m)])
     places = []
     for n, (x, y) in enumerate(free):
         T = Pose2(float(x), float(y), float(rng.uniform(-math.pi, math.pi)))

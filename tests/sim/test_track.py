@@ -127,3 +127,35 @@ def test_bad_track_settings_are_named(apartment_places) -> None:
     with pytest.raises(InputError, match="no rooms"):
         room_places(no_rooms)
     assert math.isfinite(TrackConfig().query_spacing_m)
+
+
+def test_covering_points_bring_every_free_pose_within_reach_of_a_place() -> None:
+    from factorloc.sim.track import COVER_LATTICE_M, covering_points, grid_places
+
+    world = world_by_name("apartment")
+    plain = grid_places(world, 1.0, seed=0)
+    covered = grid_places(world, 1.0, seed=0, cover_m=0.9)
+    n = len(plain)
+    assert len(covered) > n  # the 1 m grid leaves free space along walls and in passages more than 0.9 m from it
+    # the grid's places come first, unchanged (ids, poses, the very scans)
+    for a, b in zip(plain, list(covered)[:n], strict=True):
+        assert a.id == b.id and a.T_world_reference == b.T_world_reference
+        assert np.array_equal(a.reference.scan.points_m, b.reference.scan.points_m)
+    pos = covered.positions_m()
+    assert world.is_free(pos, 0.3 - 1e-9).all()
+    rng = np.random.default_rng(5)
+    x0, y0, x1, y1 = world.bounds_xy
+    probe = np.column_stack([rng.uniform(x0, x1, 20000), rng.uniform(y0, y1, 20000)])
+    probe = probe[world.is_free(probe, 0.3)]
+
+    def nearest(places: np.ndarray) -> np.ndarray:
+        return np.min(np.hypot(probe[:, None, 0] - places[None, :, 0], probe[:, None, 1] - places[None, :, 1]), axis=1)
+
+    assert nearest(pos).max() <= 0.9 + COVER_LATTICE_M / math.sqrt(2) + 1e-9
+    assert nearest(plain.positions_m()).max() > 1.0  # what the covering places are for
+    # already covered: nothing to add; bad input is named
+    assert covering_points(world, pos, 50.0).shape == (0, 2)
+    with pytest.raises(InputError, match="cover_m"):
+        covering_points(world, pos, 0.0)
+    with pytest.raises(InputError, match="placed_xy"):
+        covering_points(world, np.array([[np.nan, 0.0]]), 1.0)
