@@ -101,8 +101,11 @@ def _position_error_world(true: Pose2, est: Pose2) -> np.ndarray:
 
 def _wrong(true: Pose2, est: Pose2, cov: np.ndarray, truth_cov: np.ndarray | None = None) -> tuple[bool, float]:
     """(beyond 3σ in position or heading, squared Mahalanobis position error) of ``est`` against ``true``, with
-    ``cov`` (the estimate's) plus ``truth_cov`` (the relation's rounding, position isotropic; None: exact)."""
+    ``cov`` (the estimate's: 3×3 (x, y, θ), or 2×2 for a position-only estimate, whose heading is not judged) plus
+    ``truth_cov`` (the relation's rounding, position isotropic; None: exact)."""
     c = np.asarray(cov, dtype=float)
+    if c.shape == (2, 2):
+        c = np.block([[c, np.zeros((2, 1))], [np.zeros((1, 2)), np.full((1, 1), math.inf)]])
     if truth_cov is not None:
         c = c + truth_cov
     e = _position_error_world(true, est)
@@ -230,9 +233,9 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
             # full position; its row shows the pose ICP converged to (slid along the corridor), unreliable
             no_full_position = icp_est is not None and _position_not_measured(icp_est)
             if icp_est is not None:
-                T_icp = Pose2.from_array(
-                    icp_est.values if icp_est.kind == "pose" else icp_est.diagnostics["T_reference_query"]
-                )  # the reference sits at the origin of the world here
+                # the reference sits at the origin of the world here; a position-only estimate (heading unconstrained)
+                # carries the pose ICP converged to in its diagnostics too
+                T_icp = Pose2.from_array(icp_est.diagnostics["T_reference_query"])
                 eti, eri = _errors(true, T_icp)
                 diag.update(
                     icp_error_translation_m=eti,
@@ -250,7 +253,7 @@ def _relation_rows(item: _RelationInput, batch: _RelationsBatch) -> list[Relatio
                     icp_nees_position_exact=nees_exact,
                     icp_confidently_wrong_exact=icp_est.reliable and wrong_exact_i,
                     icp_covariance_position=icp_est.covariance[:2, :2].tolist(),
-                    icp_sigma_theta_rad=icp_est.sigma("theta"),
+                    icp_sigma_theta_rad=icp_est.sigma("theta") if icp_est.measures("theta") else math.inf,
                     **{
                         k: v
                         for k, v in icp_est.diagnostics.items()
