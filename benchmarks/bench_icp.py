@@ -11,6 +11,8 @@ Usage::
                                                              # kidnapped-robot recovery through localize()
     .venv/bin/python benchmarks/bench_icp.py --folds         # leave-one-log-out over Intel, ACES, MIT CSAIL
     .venv/bin/python benchmarks/bench_icp.py --folds --candidates default,other --every 5
+    .venv/bin/python benchmarks/bench_icp.py --folds --emulate noise=0.01      # the logs as a noisier laser's
+    .venv/bin/python benchmarks/bench_icp.py --folds --emulate range=5.6 fov=240   # ... a short-range one's
 
 ``--folds`` evaluates each candidate setting of :data:`CANDIDATES` on every fold (fit on two logs, report on
 the third; :func:`factorloc.evaluation.folds.relations_folds`) and names the one that does best on its worst
@@ -33,7 +35,9 @@ from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation.folds import (
     LOGS,
     Candidate,
+    EmulatedLaser,
     best_on_worst_fold,
+    emulated,
     format_folds,
     load_laser_datasets,
     relations_folds,
@@ -139,7 +143,23 @@ def candidates() -> dict[str, Candidate]:
     return out
 
 
-def folds(data: Path, names: list[str], every: int, chosen: list[str], json_path: Path | None) -> None:
+def _laser(spec: list[str]) -> EmulatedLaser | None:
+    """``--emulate`` items ``noise=<m>``, ``range=<m>``, ``fov=<deg>``, ``every=<n>`` as an :class:`EmulatedLaser`."""
+    if not spec:
+        return None
+    names = {"noise": "range_noise_m", "range": "max_range_m", "fov": "fov_rad", "every": "every_beam"}
+    kw: dict[str, float | int] = {}
+    for item in spec:
+        key, _, value = item.partition("=")
+        if key not in names or not value:
+            raise SystemExit(f"--emulate takes noise=<m>, range=<m>, fov=<deg>, every=<n>; got {item!r}")
+        kw[names[key]] = int(value) if key == "every" else math.radians(float(value)) if key == "fov" else float(value)
+    return EmulatedLaser(**kw)  # type: ignore[arg-type]
+
+
+def folds(
+    data: Path, names: list[str], every: int, chosen: list[str], json_path: Path | None, laser: EmulatedLaser | None = None
+) -> None:
     """Every chosen candidate on every leave-one-log-out fold; the fold table and the best on the worst fold."""
     known = candidates()
     if chosen == ["ablation"]:
@@ -149,6 +169,9 @@ def folds(data: Path, names: list[str], every: int, chosen: list[str], json_path
         raise SystemExit(f"unknown candidate(s) {unknown}; known: {list(known)}")
     t0 = time.perf_counter()
     datasets = load_laser_datasets(data, names, every=every)
+    if laser is not None:
+        datasets = [emulated(d, laser) for d in datasets]
+        print(f"scans as {laser} would return them")
     reports = relations_folds(
         datasets, [known[c] for c in chosen], progress=lambda line: print(f"[{time.perf_counter() - t0:6.0f} s] {line}")
     )
@@ -391,10 +414,17 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None, help="write the table rows here")
     ap.add_argument("--folds", action="store_true", help="leave-one-log-out over --datasets (default: all three logs)")
     ap.add_argument("--candidates", default="default", help="comma-separated candidate settings for --folds")
+    ap.add_argument(
+        "--emulate",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="with --folds: the logs' scans as another laser would return them: noise=<m> range=<m> fov=<deg> every=<n>",
+    )
     args = ap.parse_args()
     if args.folds:
         names = [d for d in args.datasets.split(",") if d] if args.datasets != "intel,aces" else list(LOGS)
-        folds(args.data, names, args.every, [c for c in args.candidates.split(",") if c], args.json)
+        folds(args.data, names, args.every, [c for c in args.candidates.split(",") if c], args.json, _laser(args.emulate))
         return
     all_rows: list[dict] = []
     for name in [d for d in args.datasets.split(",") if d]:

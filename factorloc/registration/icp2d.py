@@ -94,6 +94,12 @@ class IcpResult:
         ``Σ w_i |R q_i|²`` over the same correspondences (m², ``q_i`` the source point in its own frame): the
         largest ``H_θθ`` they could give (every normal perpendicular to its point's ray), the scale of
         :func:`~factorloc.estimators.icp.covariance.heading_strength`.
+    normal_variances_rad2
+        Per correspondence (K,), the angular variance of its target normal from the normal's own PCA line fit
+        over ``IcpParams.normal_k`` neighbours: ``(1 − quality) / (k − 2)`` (rad²), i.e. ``σ⊥² / Σ along²`` with
+        ``σ⊥²`` estimated by ``λmin / (k − 2)`` and ``quality = 1 − λmin / λmax``. Range noise tilts the normals by
+        that much at random, which widens their scatter
+        (:func:`~factorloc.estimators.icp.covariance.constraint_strength` removes it). ``None`` when not known.
     """
 
     T_target_source: Pose2
@@ -109,6 +115,7 @@ class IcpResult:
     weights: np.ndarray
     variances_m2: np.ndarray
     heading_lever_m2: float
+    normal_variances_rad2: np.ndarray | None = None
 
 
 _DEFAULT_KERNEL = Cauchy(0.05)
@@ -181,7 +188,8 @@ def _align_core(
     ``grid_start``, ``grid_geo``; ``src`` (N×2, C-contiguous, finite, N ≥ 3); ``prm``: ``IcpParams._core``.
 
     Returns ``info`` (19,) ``[θ, t_x, t_y, iterations, converged, fitness, rmse, chamfer, K, H (9, row
-    major), Σ w |R q|² (m²)]``, ``J`` (N×3) and ``rwv`` (3×N: residuals, weights, variances) of the final linearisation in
+    major), Σ w |R q|² (m²)]``, ``J`` (N×3) and ``rwv`` (4×N: residuals, weights, variances, the target normals'
+    PCA quality) of the final linearisation in
     their first K rows / columns.
     """
     n = src.shape[0]
@@ -298,7 +306,7 @@ def _align_core(
         qy[i] = s * src[i, 0] + c * src[i, 1] + ty
     _refresh(qx, qy, tgt, start, geo, bound, rho, moved_t, moved_r, 1e-9 * (1.0 + abs(tx) + abs(ty) + rho_max), nk, nd, nD)
     J = np.empty((n, 3))
-    rwv = np.empty((3, n))
+    rwv = np.empty((4, n))
     H = np.zeros(6)
     nfit = 0
     ksel = 0
@@ -323,7 +331,7 @@ def _align_core(
             else:
                 var = sp2 + sp2
             J[ksel, 0], J[ksel, 1], J[ksel, 2] = ex, ey, j2
-            rwv[0, ksel], rwv[1, ksel], rwv[2, ksel] = r, w, var
+            rwv[0, ksel], rwv[1, ksel], rwv[2, ksel], rwv[3, ksel] = r, w, var, tgt[k, 6]
             H[0] += w * ex * ex
             H[1] += w * ex * ey
             H[2] += w * ex * j2
@@ -436,7 +444,8 @@ def align(
     k = int(k)
     H = info[9:18].reshape(3, 3)
     J, rwv = J[:k], rwv[:, :k]
-    for a in (H, J, rwv):
+    normal_var = (1.0 - rwv[3]) / max(params.normal_k - 2, 1)
+    for a in (H, J, rwv, normal_var):
         a.setflags(write=False)
     return IcpResult(
         T_target_source=Pose2(x, y, th),
@@ -452,4 +461,5 @@ def align(
         weights=rwv[1],
         variances_m2=rwv[2],
         heading_lever_m2=float(info[18]),
+        normal_variances_rad2=normal_var,
     )

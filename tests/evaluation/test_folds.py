@@ -122,3 +122,40 @@ def test_relations_folds_fit_on_the_other_logs_and_report_on_the_held_out_one(sh
     assert best_on_worst_fold([plain, fitted]).worst_shortfall == min(plain.worst_shortfall, fitted.worst_shortfall)
     with pytest.raises(InputError):
         relations_folds(data[:1], [Candidate("plain")])
+
+
+def test_an_emulated_laser_changes_the_scans_as_it_says() -> None:
+    import numpy as np
+
+    from factorloc.evaluation.folds import EmulatedLaser
+
+    a = np.radians(np.arange(-90.0, 90.0, 1.0))
+    r = np.linspace(1.0, 9.0, len(a))
+    pts = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    rng = np.random.default_rng(0)
+    assert np.array_equal(EmulatedLaser().scan(pts, rng), pts)
+    near = EmulatedLaser(max_range_m=5.6).scan(pts, rng)
+    assert len(near) == int(np.sum(r < 5.6)) and np.all(np.hypot(*near.T) < 5.6)
+    ahead = EmulatedLaser(fov_rad=math.radians(120.0)).scan(pts, rng)
+    assert np.all(np.abs(np.degrees(np.arctan2(ahead[:, 1], ahead[:, 0]))) <= 60.0 + 1e-9) and len(ahead) == 121
+    assert len(EmulatedLaser(every_beam=2).scan(pts, rng)) == 90
+    noisy = EmulatedLaser(range_noise_m=0.01).scan(pts, rng)
+    dr = np.hypot(*noisy.T) - r
+    assert 0.007 < float(np.std(dr)) < 0.013  # along each ray: the bearings are unchanged
+    assert np.allclose(np.arctan2(noisy[:, 1], noisy[:, 0]), a)
+    for bad in ({"range_noise_m": -0.01}, {"max_range_m": 0.0}, {"fov_rad": 7.0}, {"every_beam": 0}, {"every_beam": 1.5}):
+        with pytest.raises(InputError, match="EmulatedLaser"):
+            EmulatedLaser(**bad)
+
+
+def test_emulated_names_a_scan_it_leaves_empty(shared_data: Path) -> None:
+    import numpy as np
+
+    from factorloc.evaluation.folds import EmulatedLaser, emulated, load_laser_datasets
+
+    (d,) = load_laser_datasets(shared_data / "laser", ["aces"], every=50)
+    e = emulated(d, EmulatedLaser(max_range_m=5.6))
+    assert len(e.log.scans.scans) == len(d.log.scans.scans) and e.relations is d.relations
+    assert all(np.hypot(*s.points_m.T).max() < 5.6 for s in e.log.scans.scans[:50])
+    with pytest.raises(InputError, match="no return left"):
+        emulated(d, EmulatedLaser(max_range_m=0.05))

@@ -230,7 +230,12 @@ def seeded_attempt(prepared: IcpReference, query: QueryScan, seeds: Seeds, confi
     gate = _seeded_gate(config, pts, seeds)
     result = align(prepared.target, pts, T_seed, config.alignment.icp, kernel(config), max_correspondence_m=gate)
     cov = covariance(result, config)
-    ev = evidence(result, cov, constraint_strength(result), query.violation(prepared, result.T_target_source))
+    ev = evidence(
+        result,
+        cov,
+        constraint_strength(result, debias=config.reliability.debias_constraint),
+        query.violation(prepared, result.T_target_source),
+    )
     return Solution(result, cov, ev, judge(ev, config), f"seeded by {pos[4]}/{head[2]}")
 
 
@@ -353,16 +358,22 @@ def global_attempts(
             # window's and what a solution outside the prior's region contests, never the result (the window hides
             # the rivals outside it, which a prior too broad to seed must not hide)
             prior_fit = (top.result.fitness, top.violation)
-            earlier.append((top.score, top.result.T_target_source, constraint_strength(top.result)))
+            earlier.append(
+                (
+                    top.score,
+                    top.result.T_target_source,
+                    constraint_strength(top.result, debias=config.reliability.debias_constraint),
+                )
+            )
             continue
         g_res, T = top.result, top.result.T_target_source
         rivals = [
-            (f.score, f.result.T_target_source, constraint_strength(f.result))
+            (f.score, f.result.T_target_source, constraint_strength(f.result, debias=config.reliability.debias_constraint))
             for f in found[1:]
             if _distinct(f.result.T_target_source, T, config)
         ]
         rivals += [e for e in earlier if _distinct(e[1], T, config)]
-        strength = constraint_strength(g_res)
+        strength = constraint_strength(g_res, debias=config.reliability.debias_constraint)
         earlier.append((top.score, T, strength))
         cov = covariance(g_res, config)
         rival, rival_T = max(((sc, P) for sc, P, _ in rivals), key=lambda x: x[0], default=(0.0, None))
