@@ -257,6 +257,7 @@ def recognition_recall(
                 return float(r)
         return math.inf
 
+    t_lo, t_hi = float(log.odometry.stamps_s[0]), float(log.odometry.stamps_s[-1])
     ranks, ranks_related, dth = [], [], []
     for i in range(len(relations)) if indices is None else indices:
         t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
@@ -267,7 +268,6 @@ def recognition_recall(
         cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: excluded(pid, t2))
         ranks.append(first_within(cands, [window]))
         windows = [window]
-        t_lo, t_hi = float(log.odometry.stamps_s[0]), float(log.odometry.stamps_s[-1])
         for t_other in np.unique(others[np.abs(ends - t2) <= tolerance_s]).tolist():
             if abs(t_other - t1) <= tolerance_s or not t_lo <= t_other <= t_hi:
                 continue

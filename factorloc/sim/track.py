@@ -164,16 +164,18 @@ def room_places(
 #: Lattice step (m) of the free points that :func:`grid_places` covers with ``cover_m``: a free pose is at most
 #: half a diagonal of it (0.071 m) from the nearest lattice point.
 COVER_LATTICE_M = 0.1
-#: Tolerance (m) of the covering test: a lattice point exactly ``cover_m`` from a place (lattice distances can be
-#: exactly that in theory) counts as covered whatever the rounding of the distance.
+#: Tolerance (m) of the covering test and of the farthest point's choice: a lattice point exactly ``cover_m`` from
+#: a place (lattice distances can be exactly that in theory) counts as covered, and points equally far in theory
+#: are a tie, whatever the rounding of the distances.
 COVER_TOLERANCE_M = 1e-9
 
 
 def covering_points(world: World, placed_xy: np.ndarray, cover_m: float, clearance_m: float = 0.3) -> np.ndarray:
     """The points (K×2, world frame, m) to add to ``placed_xy`` (N×2) so that every free point of the plan (free
     at ``clearance_m``, on a :data:`COVER_LATTICE_M` lattice) lies within ``cover_m`` of a place: greedy
-    farthest-point insertion (each new point is the free lattice point farthest from all places so far; ties: the
-    first in row order), a 2-approximation of the fewest such points (Gonzalez 1985, k-centre)."""
+    farthest-point insertion (each new point is the free lattice point farthest from all places so far; ties,
+    within :data:`COVER_TOLERANCE_M`: the first in row order), a 2-approximation of the fewest such points
+    (Gonzalez 1985, k-centre)."""
     if isinstance(cover_m, bool) or not (isinstance(cover_m, (int, float)) and math.isfinite(cover_m) and cover_m > 0):
         raise InputError(f"cover_m must be a finite number > 0, got {cover_m!r}")
     r = float(cover_m)
@@ -192,8 +194,9 @@ def covering_points(world: World, placed_xy: np.ndarray, cover_m: float, clearan
     for p in placed:
         d = np.minimum(d, np.hypot(*(free - p).T))
     added = []
-    while d.max() > r + COVER_TOLERANCE_M:
-        p = free[int(np.argmax(d))]
+    while (far := float(d.max())) > r + COVER_TOLERANCE_M:
+        # the first lattice point (row order) within the tolerance of the farthest: ties in theory are ties here
+        p = free[int(np.flatnonzero(d >= far - COVER_TOLERANCE_M)[0])]
         added.append(p)
         d = np.minimum(d, np.hypot(*(free - p).T))
     return np.array(added).reshape(-1, 2)
