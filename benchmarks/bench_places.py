@@ -68,6 +68,9 @@ def main() -> None:
         "--rank-by", choices=["shape_distribution", "scan_context", "submap_match"], default=RecognitionConfig().rank_by
     )
     ap.add_argument("--half-path", type=float, default=4.0, help="submap half-length (m of path), --rank-by submap_match")
+    ap.add_argument(
+        "--behind", type=float, default=8.0, help="submap length behind the place (m of path), --rank-by submap_match"
+    )
     ap.add_argument("--match-range", type=float, default=RecognitionConfig().match_max_range_m)
     ap.add_argument("--submap-folds", action="store_true", help="fit the submap half-length and match range leave-one-log-out")
     ap.add_argument("--half-paths", type=float, nargs="*", default=[2.0, 4.0, 6.0])
@@ -109,7 +112,9 @@ def main() -> None:
         full = read_relations(args.data / f"{name}.relations")
         rel = full.subset(args.every_of[name])
         c0 = time.process_time()
-        res = recognition_recall(log, rel, cfg, name=name, submap_half_path_m=args.half_path, related=full)
+        res = recognition_recall(
+            log, rel, cfg, name=name, submap_half_path_m=args.half_path, related=full, submap_behind_m=args.behind
+        )
         cpu = time.process_time() - c0
         row = res.to_dict() | {"seconds": time.perf_counter() - t0, "cpu_s_per_query": cpu / max(res.ranks.size, 1)}
         rows.append(row)
@@ -201,7 +206,9 @@ def submap_folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
         table[name] = {}
         for h, r in grid:
             c0 = time.process_time()
-            res = recognition_recall(log, rel, replace(base, match_max_range_m=r), name=name, submap_half_path_m=h)
+            res = recognition_recall(
+                log, rel, replace(base, match_max_range_m=r), name=name, submap_half_path_m=h, submap_behind_m=h
+            )
             row = res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
             table[name][(h, r)] = row
             print(

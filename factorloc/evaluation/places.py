@@ -95,19 +95,25 @@ def path_submaps(
     place_t_s: np.ndarray,
     half_path_m: float,
     *,
+    behind_m: float | None = None,
     scan_spacing_m: float = 0.25,
     voxel_m: float = 0.1,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Local submaps along a log: per place, the scans whose odometry path length lies within ``half_path_m`` of
-    the place's (one every ``scan_spacing_m`` of path, the place's own first), stitched by the odometry into the
-    place's frame (:func:`~factorloc.places.recognition.local_submap`). Returns the submaps (place id → N×2
-    points, m) and the (N, 2) time span (s) of the scans each holds.
+    """Local submaps along a log: per place, the scans whose odometry path length lies within ``half_path_m``
+    ahead of the place's and ``behind_m`` behind it (default ``half_path_m``; one every ``scan_spacing_m`` of path,
+    the place's own first), stitched by the odometry into the place's frame
+    (:func:`~factorloc.places.recognition.local_submap`). Returns the submaps (place id → N×2 points, m) and the
+    (N, 2) time span (s) of the scans each holds.
 
     The odometry is trusted over a few metres only: neighbours are taken along the path, never by position (a
-    later pass through the same spot has drifted).
+    later pass through the same spot has drifted). A scanner that looks forward (the logs' 180°) sees the part of
+    a place behind it only from the scans taken before it got there: ``behind_m`` longer than ``half_path_m``
+    gives a robot coming back the other way more of what it sees.
     """
-    if not (isinstance(half_path_m, (int, float)) and half_path_m >= 0):
-        raise InputError(f"half_path_m must be >= 0, got {half_path_m!r}")
+    behind = half_path_m if behind_m is None else behind_m
+    for name, v in (("half_path_m", half_path_m), ("behind_m", behind)):
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise InputError(f"{name} must be a finite number >= 0, got {v!r}")
     stamps = log.scans.stamps_s
     inside = np.flatnonzero((stamps >= log.odometry.stamps_s[0]) & (stamps <= log.odometry.stamps_s[-1]))
     s_all = np.asarray(log.odometry.path_length_m(stamps[inside]))
@@ -116,7 +122,7 @@ def path_submaps(
     for n, (place, t) in enumerate(zip(place_map, place_t_s, strict=True)):
         c = log.scans.index_at(float(t), 2e-3)
         s_c = float(log.odometry.path_length_m(float(t)))
-        lo, hi = np.searchsorted(s_all, s_c - half_path_m, "left"), np.searchsorted(s_all, s_c + half_path_m, "right")
+        lo, hi = np.searchsorted(s_all, s_c - behind, "left"), np.searchsorted(s_all, s_c + half_path_m, "right")
         chosen, last = [c], -math.inf
         for j, s_j in zip(inside[lo:hi], s_all[lo:hi], strict=True):
             if j != c and len(log.scans.scans[j]) and abs(float(s_j) - last) >= scan_spacing_m:
@@ -223,20 +229,24 @@ def recognition_recall(
     indices: Sequence[int] | None = None,
     submap_half_path_m: float = 4.0,
     related: Relations | None = None,
+    submap_behind_m: float | None = 8.0,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 
     ``indices`` restricts to those relations (a subset for tests); only loop relations are scored.
-    ``submap_half_path_m``: the half-length (m of odometry path) of the places' local submaps when the config ranks
-    by ``"submap_match"`` (:func:`path_submaps`); unused otherwise. ``related``: the ground truth searched for the
-    other loop relations of each query scan (``RecallResult.ranks_related``); default ``relations`` — pass the
-    whole file when ``relations`` is a subset.
+    ``submap_half_path_m``: the length (m of odometry path) ahead of the place of its local submap when the config
+    ranks by ``"submap_match"`` (:func:`path_submaps`), ``submap_behind_m`` its length behind the place (None: the
+    same); the defaults, 4 m ahead and 8 m behind, were chosen leave one log out (``docs/places.md``); unused
+    otherwise. ``related``: the ground truth searched for the other loop relations of each query scan
+    (``RecallResult.ranks_related``); default ``relations`` — pass the whole file when ``relations`` is a subset.
     """
     place_map, place_t = places_along_log(log, spacing_m)
     spans = np.column_stack([place_t, place_t])
     submaps = None
     if config.rank_by == "submap_match":
-        submaps, spans = path_submaps(log, place_map, place_t, submap_half_path_m, voxel_m=config.submap_voxel_m)
+        submaps, spans = path_submaps(
+            log, place_map, place_t, submap_half_path_m, behind_m=submap_behind_m, voxel_m=config.submap_voxel_m
+        )
     recognizer = PlaceRecognizer(place_map, config, submaps=submaps)
     time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
     span_of = dict(zip(place_map.ids, spans.tolist(), strict=True))
