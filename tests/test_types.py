@@ -165,6 +165,13 @@ def test_estimate_builders_sigmas_and_json_round_trip() -> None:
         Estimate.heading("compass", 0.0, 0.0)
     with pytest.raises(InputError, match="sigmas"):
         Estimate.from_dict({"step": "a", "components": ["theta"], "values": [0.0], "sigmas": [-1.0]})
+    # a component the estimate does not measure, or no component at all, is named (not a bare list.index error)
+    heading = e.marginal(["theta"])
+    for bad in ("x", Component.Y, "z"):
+        with pytest.raises(InputError, match=r"'odometry' estimate measures \['theta'\]"):
+            heading.sigma(bad)
+        with pytest.raises(InputError, match="not"):
+            heading.value(bad)
 
 
 # --- reference / query -----------------------------------------------------------

@@ -277,14 +277,21 @@ class Estimate:
         """Whether this estimate measures ``component``."""
         return (component if type(component) is Component else Component(component)) in self.components
 
+    def _index(self, component: Component | str) -> int:
+        """The position of ``component`` in ``components``; :class:`InputError` naming it when not measured."""
+        try:
+            return self.components.index(component if type(component) is Component else Component(component))
+        except ValueError:
+            measured = [str(c.value) for c in self.components]
+            raise InputError(f"the {self.step!r} estimate measures {measured}, not {component!r}") from None
+
     def value(self, component: Component | str) -> float:
-        """The measured value of ``component`` (m or rad)."""
-        c = component if type(component) is Component else Component(component)
-        return float(self.values[self.components.index(c)])
+        """The measured value of ``component`` (m or rad); :class:`InputError` when it is not measured."""
+        return float(self.values[self._index(component)])
 
     def sigma(self, component: Component | str) -> float:
-        """The standard deviation of ``component`` (m or rad)."""
-        i = self.components.index(component if type(component) is Component else Component(component))
+        """The standard deviation of ``component`` (m or rad); :class:`InputError` when it is not measured."""
+        i = self._index(component)
         return float(math.sqrt(self.covariance[i, i]))
 
     @property
