@@ -37,7 +37,7 @@ from pathlib import Path
 
 from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation.folds import LOGS
-from factorloc.evaluation.places import recognition_recall
+from factorloc.evaluation.places import SUBMAP_AHEAD_M, SUBMAP_BEHIND_M, recognition_recall
 from factorloc.evaluation.relations import read_relations
 from factorloc.places import RecognitionConfig
 
@@ -67,9 +67,11 @@ def main() -> None:
     ap.add_argument(
         "--rank-by", choices=["shape_distribution", "scan_context", "submap_match"], default=RecognitionConfig().rank_by
     )
-    ap.add_argument("--half-path", type=float, default=4.0, help="submap half-length (m of path), --rank-by submap_match")
     ap.add_argument(
-        "--behind", type=float, default=8.0, help="submap length behind the place (m of path), --rank-by submap_match"
+        "--half-path", type=float, default=SUBMAP_AHEAD_M, help="submap half-length (m of path), --rank-by submap_match"
+    )
+    ap.add_argument(
+        "--behind", type=float, default=SUBMAP_BEHIND_M, help="submap length behind the place (m of path), --rank-by submap_match"
     )
     ap.add_argument("--match-range", type=float, default=RecognitionConfig().match_max_range_m)
     ap.add_argument("--submap-folds", action="store_true", help="fit the submap half-length and match range leave-one-log-out")

@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -152,8 +152,6 @@ def emulated(dataset: LaserDataset, laser: EmulatedLaser) -> LaserDataset:
     """``dataset`` with every scan as ``laser`` would return it (the odometry and the relations unchanged).
 
     Raises :class:`~factorloc.errors.InputError` naming the first scan that ``laser`` leaves without a return."""
-    from dataclasses import replace
-
     from factorloc.datasets.rosbag import ScanTrack
     from factorloc.types import Scan
 
@@ -165,10 +163,8 @@ def emulated(dataset: LaserDataset, laser: EmulatedLaser) -> LaserDataset:
         if len(pts) == 0:
             raise InputError(f"{dataset.name}: the scan at t = {float(t):.3f} s has no return left under {laser}")
         out.append(Scan(pts))
-    scans = tuple(out)
-    return LaserDataset(
-        dataset.name, replace(dataset.log, scans=ScanTrack(track.stamps_s, scans, track.frame_id)), dataset.relations
-    )
+    log = replace(dataset.log, scans=ScanTrack(track.stamps_s, tuple(out), track.frame_id))
+    return LaserDataset(dataset.name, log, dataset.relations)
 
 
 Fit = Callable[[Mapping[str, Sequence[RelationResult]], Config], Config]

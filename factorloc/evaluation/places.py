@@ -43,6 +43,8 @@ from factorloc.places.recognition import local_submap
 from factorloc.types import Odometry, Query, Reference
 
 __all__ = [
+    "SUBMAP_AHEAD_M",
+    "SUBMAP_BEHIND_M",
     "RecallResult",
     "SimulatedRecall",
     "McTrack",
@@ -61,6 +63,12 @@ __all__ = [
     "track_figures",
     "verified_recall",
 ]
+
+
+#: A log place's local submap (:func:`path_submaps`): the odometry path ahead of the place and behind it (m), chosen
+#: leave one log out (``docs/places.md``).
+SUBMAP_AHEAD_M = 4.0
+SUBMAP_BEHIND_M = 8.0
 
 
 def places_along_log(log: LaserLog, spacing_m: float = 1.0) -> tuple[PlaceMap, np.ndarray]:
@@ -227,9 +235,9 @@ def recognition_recall(
     max_k: int = 5,
     tolerance_s: float = 2e-3,
     indices: Sequence[int] | None = None,
-    submap_half_path_m: float = 4.0,
+    submap_half_path_m: float = SUBMAP_AHEAD_M,
     related: Relations | None = None,
-    submap_behind_m: float | None = 8.0,
+    submap_behind_m: float | None = SUBMAP_BEHIND_M,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 

@@ -38,6 +38,11 @@ from factorloc.verdicts import Check
 __all__ = ["QueryScan", "Seeds", "Solution", "evidence", "global_attempts", "near_seed", "seed_fit", "seeded_attempt"]
 
 
+def _strength(result: IcpResult, config: IcpConfig) -> float:
+    """The constraint strength of ``result`` as the configuration measures it (``reliability.debias_constraint``)."""
+    return constraint_strength(result, debias=config.reliability.debias_constraint)
+
+
 @dataclass(frozen=True)
 class Seeds:
     """The reliable hypotheses that seed the step: ``position`` ``(x_m, y_m, σx_m, σy_m, step)`` and ``heading``
@@ -233,7 +238,7 @@ def seeded_attempt(prepared: IcpReference, query: QueryScan, seeds: Seeds, confi
     ev = evidence(
         result,
         cov,
-        constraint_strength(result, debias=config.reliability.debias_constraint),
+        _strength(result, config),
         query.violation(prepared, result.T_target_source),
     )
     return Solution(result, cov, ev, judge(ev, config), f"seeded by {pos[4]}/{head[2]}")
@@ -362,18 +367,18 @@ def global_attempts(
                 (
                     top.score,
                     top.result.T_target_source,
-                    constraint_strength(top.result, debias=config.reliability.debias_constraint),
+                    _strength(top.result, config),
                 )
             )
             continue
         g_res, T = top.result, top.result.T_target_source
         rivals = [
-            (f.score, f.result.T_target_source, constraint_strength(f.result, debias=config.reliability.debias_constraint))
+            (f.score, f.result.T_target_source, _strength(f.result, config))
             for f in found[1:]
             if _distinct(f.result.T_target_source, T, config)
         ]
         rivals += [e for e in earlier if _distinct(e[1], T, config)]
-        strength = constraint_strength(g_res, debias=config.reliability.debias_constraint)
+        strength = _strength(g_res, config)
         earlier.append((top.score, T, strength))
         cov = covariance(g_res, config)
         rival, rival_T = max(((sc, P) for sc, P, _ in rivals), key=lambda x: x[0], default=(0.0, None))
