@@ -52,7 +52,7 @@ from scipy.stats import chi2
 from factorloc.config import Config
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import DatasetError, InputError
-from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpStep
+from factorloc.estimators.icp import IcpStep, position_determined
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
 from factorloc.evaluation.relations_data import Relations, read_relations
@@ -85,9 +85,7 @@ _CHI2_3SIGMA_2DOF = float(chi2.ppf(0.9973002039367398, 2))
 
 def _position_not_measured(est: Estimate) -> bool:
     """A degenerate ICP result: heading-only, or a pose whose position is unknown along a corridor."""
-    if est.kind == "heading":
-        return True
-    return bool(np.linalg.eigvalsh(est.covariance[:2, :2])[-1] >= (0.5 * UNCONSTRAINED_SIGMA_M) ** 2)
+    return not position_determined(est)
 
 
 def _errors(true: Pose2, est: Pose2) -> tuple[float, float]:

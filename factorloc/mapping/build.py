@@ -41,7 +41,7 @@ import numpy as np
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import InputError
 from factorloc.estimators.base import Hypotheses
-from factorloc.estimators.icp import UNCONSTRAINED_SIGMA_M, IcpReference, estimate
+from factorloc.estimators.icp import IcpReference, estimate, position_determined
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.mapping.config import MapConfig
 from factorloc.mapping.result import Closure, MapResult, _adjoint, relative_covariance
@@ -94,9 +94,7 @@ def _body_covariance(T_ref_query: Pose2, covariance_ref: np.ndarray) -> np.ndarr
 
 def _full_position(est: Estimate) -> bool:
     """A reliable full pose whose position is measured in both directions (not degenerate along a corridor)."""
-    if not est.reliable or est.kind != "full":
-        return False
-    return bool(np.linalg.eigvalsh(est.covariance[:2, :2])[-1] < (0.5 * UNCONSTRAINED_SIGMA_M) ** 2)
+    return est.reliable and est.kind == "full" and position_determined(est)
 
 
 def _noise(covariance: np.ndarray):  # noqa: ANN202 - gtsam has no stubs
