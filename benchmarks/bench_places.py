@@ -16,9 +16,15 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim              # the simulated apartment, seeds 201-203
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --cover 0.9  # its 1 m grid plus places covering it
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --sim --modality both   # scan + 512 px panorama queries
-    nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 10 --every 20  # after ICP verification of the top 10
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify 0             # retrieval alone (no verified columns)
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify-folds --every 10 1 1  # leave-one-log-out shortlist
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --rank-by submap_match   # scan-to-submap matching
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --submap-folds --every 5 1 1  # leave-one-log-out submap grid
+
+The main table gives the recall of retrieval and, beside it, after geometric verification
+(:class:`~factorloc.places.PlaceVerifier`: the top ``--verify`` places, default
+:data:`~factorloc.places.VERIFY_SHORTLIST`, each verified by the ICP step without a hypothesis, the verified first).
+``--verify-folds`` fits that shortlist's length leave one log out over ``--shortlists``.
 
 ``--every`` takes one value for all logs or one per log (in ``--logs`` order). ``--submap-folds`` fits the submap
 match's two parameters chosen by looking at data — the half-length of the places' local submaps
@@ -39,7 +45,7 @@ from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation.folds import LOGS
 from factorloc.evaluation.places import SUBMAP_AHEAD_M, SUBMAP_BEHIND_M, recognition_recall
 from factorloc.evaluation.relations import read_relations
-from factorloc.places import RecognitionConfig
+from factorloc.places import VERIFY_SHORTLIST, RecognitionConfig
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
 
@@ -63,7 +69,11 @@ def main() -> None:
     ap.add_argument(
         "--cover", type=float, default=None, help="with --sim: add places until every free pose is within this many m of one"
     )
-    ap.add_argument("--verify", type=int, default=0, help="recall after ICP verification of the top N (hloc pattern)")
+    ap.add_argument(
+        "--verify", type=int, default=VERIFY_SHORTLIST, help="also the recall after ICP verification of the top N (0: not)"
+    )
+    ap.add_argument("--verify-folds", action="store_true", help="fit the verified shortlist's length leave-one-log-out")
+    ap.add_argument("--shortlists", type=int, nargs="*", default=[10, 20, 30, 40])
     ap.add_argument(
         "--rank-by", choices=["shape_distribution", "scan_context", "submap_match"], default=RecognitionConfig().rank_by
     )
@@ -100,13 +110,19 @@ def main() -> None:
     if args.sim:
         simulated(args, cfg)
         return
-    if args.verify:
-        verified(args, cfg)
+    if args.verify_folds:
+        verify_folds(args, cfg)
         return
+    logs_table(args, cfg)
+
+
+def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """The main table: per log, the recall of retrieval and (``--verify`` > 0) after verifying the top N."""
     rows = []
     print(
         f"{'log':<10} {'places':>6} {'loops':>6} {'R@1':>6} {'R@5':>6} {'facing':>6} {'R@1f':>6} {'R@5f':>6} {'R@1rel':>6} "
         f"{'R@5rel':>6} {'s':>6} {'cpu ms/q':>8}"
+        + (f" | verified top {args.verify}: R@1 R@5 R@1rel R@5rel cpu ms/q" if args.verify else "")
     )
     for name in args.logs:
         t0 = time.perf_counter()
@@ -119,31 +135,79 @@ def main() -> None:
         )
         cpu = time.process_time() - c0
         row = res.to_dict() | {"seconds": time.perf_counter() - t0, "cpu_s_per_query": cpu / max(res.ranks.size, 1)}
-        rows.append(row)
-        print(
+        line = (
             f"{name:<10} {row['places']:>6} {row['loop_relations']:>6} {100 * row['recall_at_1']:>5.1f}% "
             f"{100 * row['recall_at_5']:>5.1f}% {row['facing_relations']:>6} {100 * row['recall_at_1_facing']:>5.1f}% "
             f"{100 * row['recall_at_5_facing']:>5.1f}% {100 * row['recall_at_1_related']:>5.1f}% "
             f"{100 * row['recall_at_5_related']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
         )
+        if args.verify:
+            c0 = time.process_time()
+            ver = recognition_recall(
+                log,
+                rel,
+                cfg,
+                name=name,
+                submap_half_path_m=args.half_path,
+                related=full,
+                submap_behind_m=args.behind,
+                verify_shortlist=args.verify,
+            ).to_dict()
+            ver["cpu_s_per_query"] = (time.process_time() - c0) / max(res.ranks.size, 1)
+            row["verified"] = ver | {"shortlist": args.verify}
+            line += (
+                f" | {100 * ver['recall_at_1']:>5.1f}% {100 * ver['recall_at_5']:>5.1f}% "
+                f"{100 * ver['recall_at_1_related']:>5.1f}% {100 * ver['recall_at_5_related']:>5.1f}% "
+                f"{1000 * ver['cpu_s_per_query']:>8.1f}"
+            )
+        rows.append(row)
+        print(line, flush=True)
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
 
 
-def verified(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
-    """recall after the hierarchy verifies the top ``--verify`` places (every ``--every``-th relation)."""
-    from factorloc.evaluation.places import verified_recall
-
-    print(f"{'log':<10} {'loops':>6} {'verified R@1':>12} {'verified R@5':>12} {'s':>6}")
+def verify_folds(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
+    """Leave one log out over the verified shortlist's length (``--shortlists``): for each log, the length with the
+    best mean recall@5 on the two others (ties: the shorter), reported on it; then the length whose worst log is best
+    (the default's rule)."""
+    table: dict[str, dict[int, dict]] = {}
     for name in args.logs:
-        t0 = time.perf_counter()
         log = read_laser_log(args.data / f"{name}.sort.bag")
-        rel = read_relations(args.data / f"{name}.relations").subset(args.every_of[name])
-        r = verified_recall(log, rel, cfg, n_candidates=args.verify, name=name)
-        print(
-            f"{name:<10} {r.ranks.size:>6} {100 * r.recall_at(1):>11.1f}% {100 * r.recall_at(min(5, r.max_k)):>11.1f}% "
-            f"{time.perf_counter() - t0:>6.1f}",
-            flush=True,
+        full = read_relations(args.data / f"{name}.relations")
+        rel = full.subset(args.every_of[name])
+        table[name] = {}
+        for n in args.shortlists:
+            c0 = time.process_time()
+            res = recognition_recall(
+                log,
+                rel,
+                cfg,
+                name=name,
+                submap_half_path_m=args.half_path,
+                related=full,
+                submap_behind_m=args.behind,
+                verify_shortlist=n,
+            )
+            row = res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
+            table[name][n] = row
+            print(
+                f"  {name:<10} shortlist {n:>3}: loops {row['loop_relations']:>4} R@1 {100 * row['recall_at_1']:5.1f}%  "
+                f"R@5 {100 * row['recall_at_5']:5.1f}%  cpu {1000 * row['cpu_s_per_query']:.0f} ms/query",
+                flush=True,
+            )
+    print(f"{'held out':<10} {'shortlist':>9} {'R@1':>6} {'R@5':>6}")
+    out = []
+    for held in args.logs:
+        train = [n for n in args.logs if n != held]
+        best = max(args.shortlists, key=lambda k: (sum(table[n][k]["recall_at_5"] for n in train), -k))
+        row = table[held][best]
+        out.append({"held_out": held, "shortlist": best, **row})
+        print(f"{held:<10} {best:>9} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
+    worst = max(args.shortlists, key=lambda k: (min(table[n][k]["recall_at_5"] for n in args.logs), -k))
+    print(f"best on the worst log: shortlist {worst}")
+    if args.json:
+        args.json.write_text(
+            json.dumps({"folds": out, "grid": {n: {str(k): v for k, v in t.items()} for n, t in table.items()}}, indent=2)
         )
 
 

@@ -34,11 +34,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factorloc._validate import positive_int
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import InputError
+from factorloc.estimators.icp import IcpConfig
 from factorloc.evaluation.relations import Relations
 from factorloc.geometry import Pose2
-from factorloc.places import Place, PlaceMap, PlaceRecognizer, RecognitionConfig
+from factorloc.places import Place, PlaceMap, PlaceRecognizer, PlaceVerifier, RecognitionConfig
 from factorloc.places.recognition import local_submap
 from factorloc.types import Odometry, Query, Reference
 
@@ -61,7 +63,6 @@ __all__ = [
     "simulated_recall",
     "simulated_track",
     "track_figures",
-    "verified_recall",
 ]
 
 
@@ -238,6 +239,8 @@ def recognition_recall(
     submap_half_path_m: float = SUBMAP_AHEAD_M,
     related: Relations | None = None,
     submap_behind_m: float | None = SUBMAP_BEHIND_M,
+    verify_shortlist: int = 0,
+    icp_config: IcpConfig | None = None,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 
@@ -247,6 +250,10 @@ def recognition_recall(
     same); the defaults, 4 m ahead and 8 m behind, were chosen leave one log out (``docs/places.md``); unused
     otherwise. ``related``: the ground truth searched for the other loop relations of each query scan
     (``RecallResult.ranks_related``); default ``relations`` — pass the whole file when ``relations`` is a subset.
+    ``verify_shortlist``: when > 0, the ranks are those after geometric verification
+    (:meth:`~factorloc.places.PlaceVerifier.rank`: that many places retrieved, each verified by the ICP step
+    without a hypothesis, with ``icp_config`` (default the library's), the verified first); the excluded places
+    are left out before the shortlist is taken.
     """
     place_map, place_t = places_along_log(log, spacing_m)
     spans = np.column_stack([place_t, place_t])
@@ -256,6 +263,8 @@ def recognition_recall(
             log, place_map, place_t, submap_half_path_m, behind_m=submap_behind_m, voxel_m=config.submap_voxel_m
         )
     recognizer = PlaceRecognizer(place_map, config, submaps=submaps)
+    verify_shortlist = positive_int("verify_shortlist", verify_shortlist, minimum=0)
+    verifier = PlaceVerifier(place_map, icp_config or IcpConfig()) if verify_shortlist else None
     time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
     span_of = dict(zip(place_map.ids, spans.tolist(), strict=True))
     half = exclude_window_s / 2
@@ -283,7 +292,11 @@ def recognition_recall(
             continue
         window = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
         query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
-        cands = recognizer.candidates(query, max_k, exclude=lambda pid, t2=t2: excluded(pid, t2))
+        skip = lambda pid, t2=t2: excluded(pid, t2)  # noqa: E731
+        if verifier is None:
+            cands: Sequence[object] = recognizer.candidates(query, max_k, exclude=skip)
+        else:
+            cands = verifier.rank(recognizer, query, max_k, shortlist=verify_shortlist, exclude=skip)
         ranks.append(first_within(cands, [window]))
         windows = [window]
         for t_other in np.unique(others[np.abs(ends - t2) <= tolerance_s]).tolist():
@@ -553,65 +566,6 @@ def choice_recall(scenario: object, results: Sequence[object], place_map: PlaceM
         chosen = {pid for pid, _ in places_in_view(place_map, r.predicted, r.covariance, cfg)}  # type: ignore[attr-defined]
         hits += bool(chosen & overlapping)
     return n, (hits / n if n else math.nan)
-
-
-def verified_recall(
-    log: LaserLog,
-    relations: Relations,
-    config: RecognitionConfig = RecognitionConfig(),
-    *,
-    n_candidates: int = 10,
-    seed_sigma_m: float = 0.5,
-    seed_sigma_rad: float = 0.3,
-    indices: Sequence[int] | None = None,
-    name: str = "",
-    tolerance_s: float = 2e-3,
-) -> RecallResult:
-    """recall@k after geometric verification (the hloc pattern): the top ``n_candidates`` places by signature,
-    each checked by the hierarchy's odometry and ICP steps (:func:`~factorloc.evaluation.relations.relations_config`)
-    seeded at the place with the Scan Context heading (σ ``seed_sigma_m``, ``seed_sigma_rad``, the tracker's
-    re-localization seed); a place is *verified* when the ICP step's estimate is fused and the result determined.
-    ``ranks`` are the ranks among the verified places, in retrieval order (same protocol as
-    :func:`recognition_recall` otherwise)."""
-    from factorloc.estimators.icp import IcpStep
-    from factorloc.estimators.odometry import OdometryStep
-    from factorloc.evaluation.relations import relations_config
-    from factorloc.pipeline import Localizer
-    from factorloc.types import StepStatus
-
-    cfg_loc = relations_config()
-    place_map, place_t = places_along_log(log)
-    recognizer = PlaceRecognizer(place_map, config)
-    time_of = dict(zip(place_map.ids, place_t.tolist(), strict=True))
-    localizers: dict[str, Localizer] = {}
-    ranks, dth = [], []
-    for i in range(len(relations)) if indices is None else indices:
-        t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
-        if log.odometry.distance_between(t1, t2)[0] < 5.0:
-            continue
-        lo, hi = correct_window_s(log, t1, 1.0, tolerance_s)
-        scan = log.scans.at(t2, tolerance_s)
-        cands = recognizer.candidates(
-            Query(scan=scan, id="q"), n_candidates, exclude=lambda pid, t2=t2: abs(time_of[pid] - t2) <= 15.0
-        )
-        rank, verified = math.inf, 0
-        for c in cands:
-            place = place_map[c.place_id]
-            if c.place_id not in localizers:
-                localizers[c.place_id] = Localizer(
-                    place.reference, cfg_loc, steps=[OdometryStep(cfg_loc.odometry), IcpStep(cfg_loc.icp)]
-                )
-            seed = place.T_world_reference.compose(Pose2(0.0, 0.0, c.theta_place_query_rad or 0.0))
-            q = Query(scan=scan, odometry=Odometry(seed, seed_sigma_m, seed_sigma_m, seed_sigma_rad), id="q")
-            loc = localizers[c.place_id].localize(q)
-            if loc.step("icp").status is StepStatus.FUSED and loc.determined:
-                verified += 1
-                if lo <= time_of[c.place_id] <= hi:
-                    rank = verified
-                    break
-        ranks.append(rank)
-        dth.append(abs(math.remainder(float(relations.poses[i, 2]), 2 * math.pi)))
-    return RecallResult(name or log.source, len(place_map), np.array(ranks, dtype=np.float64), np.array(dth), n_candidates)
 
 
 # --------------------------------------------------------------------------

@@ -7,6 +7,7 @@ Above :mod:`factorloc.pipeline` in the layering (types → estimators → gating
 - :mod:`~factorloc.places.choose`: the places whose view can overlap a query, given a reliable pose hypothesis;
 - :mod:`~factorloc.places.recognition`: place recognition without one (D2, Scan Context, scan-to-submap matching,
   panorama Fourier signature);
+- :mod:`~factorloc.places.verify`: the retrieved places verified by the ICP step without a hypothesis, re-ranked;
 - :mod:`~factorloc.places.multi`: the hierarchy against several places, fused on one pose (:class:`PlaceLocalization`).
 """
 
@@ -27,9 +28,11 @@ from factorloc.places.recognition import (
     submap_match,
 )
 from factorloc.places.tracker import Tracker, TrackerConfig, TrackResult, TrackState, seed_of_prediction
+from factorloc.places.verify import VERIFY_SHORTLIST, PlaceVerifier, VerifiedPlace
 
 __all__ = [
     "PLACE_COVARIANCE_KEY",
+    "VERIFY_SHORTLIST",
     "ChoiceConfig",
     "MultiPlaceLocalizer",
     "Place",
@@ -38,10 +41,12 @@ __all__ = [
     "PlaceMap",
     "PlaceRecognizer",
     "PlaceRun",
+    "PlaceVerifier",
     "RecognitionConfig",
     "TrackResult",
     "TrackState",
     "Tracker",
+    "VerifiedPlace",
     "TrackerConfig",
     "local_submap",
     "neighbour_submaps",

@@ -481,6 +481,7 @@ class PlaceRecognizer:
             raise InputError(f"config must be a RecognitionConfig, got {type(config).__name__}")
         if submaps is not None and not isinstance(submaps, dict):
             raise InputError(f"submaps must be a dict of place id to N×2 points, got {type(submaps).__name__}")
+        self.place_map = place_map
         self.config = config
         self._scan_ids: list[str] = []
         scs, keys, d2s = [], [], []
