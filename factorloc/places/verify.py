@@ -15,7 +15,7 @@ their free-space test and their ambiguity tests against the distinct rivals.
 :meth:`PlaceVerifier.rank` orders the shortlist: verified places first, by the score the ICP rules judged
 (``icp.score``: fitness − violation weight × the share in seen-free space), then the others in retrieval order. The
 shortlist's length, :data:`VERIFY_SHORTLIST`, was chosen leave one log out on the three laser logs
-(``docs/places.md``, *Verifying the shortlist*). It costs one global ICP per shortlisted place (about 18 ms on a
+(``docs/places.md``, *Verifying the shortlist*). It costs one global ICP per shortlisted place (9–14 ms on a
 laser scan): what a lost robot pays once per re-localization.
 """
 
