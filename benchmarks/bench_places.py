@@ -219,18 +219,29 @@ def simulated(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
     world = apartment()
     width = 0 if args.modality == "scan" else 512
     place_map = simulated_place_map(world, 1.0, seed=0, panorama_width_px=width, cover_m=args.cover)
+    verify = args.verify if args.modality != "panorama" else 0  # a panorama-only query has no scan to verify with
     print(
         f"{args.modality}: {'seed':>5} {'places':>6} {'queries':>7} {'R@1':>6} {'R@5':>6} {'covered':>7} "
-        f"{'R@1cov':>6} {'R@5cov':>6}"
+        f"{'R@1cov':>6} {'R@5cov':>6}" + (f" | verified top {verify}: same columns" if verify else "")
     )
     for seed in args.seeds:
-        r = simulated_recall(
-            world, place_map, args.queries, seed, cfg, panorama_width_px=width, with_scan=args.modality == "both"
-        )
-        print(
-            f"{seed:>5} {len(place_map):>6} {args.queries:>7} {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}% "
-            f"{100 * r.coverage:>6.1f}% {100 * r.recall_at_covered(1):>5.1f}% {100 * r.recall_at_covered(5):>5.1f}%"
-        )
+        line = f"{seed:>5} {len(place_map):>6} {args.queries:>7}"
+        for n in (0, verify) if verify else (0,):
+            r = simulated_recall(
+                world,
+                place_map,
+                args.queries,
+                seed,
+                cfg,
+                panorama_width_px=width,
+                with_scan=args.modality == "both",
+                verify_shortlist=n,
+            )
+            line += (
+                f" {100 * r.recall_at(1):>5.1f}% {100 * r.recall_at(5):>5.1f}% {100 * r.coverage:>6.1f}% "
+                f"{100 * r.recall_at_covered(1):>5.1f}% {100 * r.recall_at_covered(5):>5.1f}%"
+            )
+        print(line, flush=True)
 
 
 def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:

@@ -377,16 +377,23 @@ def simulated_recall(
     clearance_m: float = 0.3,
     panorama_width_px: int = 0,
     with_scan: bool = False,
+    verify_shortlist: int = 0,
+    icp_config: IcpConfig | None = None,
 ) -> SimulatedRecall:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on ``n_queries`` random free poses (random
     headings) of a simulated world, each sensed by a 360° laser scan — or, with ``panorama_width_px`` > 0, by a
     rendered panorama (the places must hold panoramas), and a scan too with ``with_scan``; reproducible from
-    ``seed``."""
+    ``seed``. ``verify_shortlist`` > 0: the ranks after geometric verification of that many retrieved places
+    (:meth:`~factorloc.places.PlaceVerifier.rank`, the ICP step with ``icp_config``); the queries need a scan."""
     from factorloc.sim import render_panorama, render_scan
     from factorloc.sim.motion import sample_free_pose
 
+    verify_shortlist = positive_int("verify_shortlist", verify_shortlist, minimum=0)
+    if verify_shortlist and panorama_width_px > 0 and not with_scan:
+        raise InputError("verify_shortlist needs queries with a scan (with_scan=True, or no panorama)")
     rng = np.random.default_rng(seed)
     recognizer = PlaceRecognizer(place_map, config)
+    verifier = PlaceVerifier(place_map, icp_config or IcpConfig()) if verify_shortlist else None
     pos = place_map.positions_m()
     ranks, covered = [], []
     for i in range(n_queries):
@@ -400,8 +407,12 @@ def simulated_recall(
         ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
         covered.append(bool(ok))
         rank = math.inf
-        for r, c in enumerate(recognizer.candidates(q, max_k), start=1):
-            if c.place_id in ok:
+        if verifier is None:
+            cands: Sequence[object] = recognizer.candidates(q, max_k)
+        else:
+            cands = verifier.rank(recognizer, q, max_k, shortlist=verify_shortlist)
+        for r, c in enumerate(cands, start=1):
+            if c.place_id in ok:  # type: ignore[attr-defined]
                 rank = r
                 break
         ranks.append(rank)
