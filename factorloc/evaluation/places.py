@@ -29,7 +29,7 @@ is the scan at ``t2`` alone.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -223,6 +223,20 @@ class RecallResult:
         )
 
 
+def _ranked_ids(
+    recognizer: PlaceRecognizer,
+    verifier: PlaceVerifier | None,
+    query: Query,
+    k: int,
+    shortlist: int,
+    exclude: Callable[[str], bool] | None = None,
+) -> list[str]:
+    """The ids of the top ``k`` places for ``query``: retrieved, or (with a verifier) retrieved and verified."""
+    if verifier is None:
+        return [c.place_id for c in recognizer.candidates(query, k, exclude=exclude)]
+    return [v.place_id for v in verifier.rank(recognizer, query, k, shortlist=shortlist, exclude=exclude)]
+
+
 def recognition_recall(
     log: LaserLog,
     relations: Relations,
@@ -277,9 +291,9 @@ def recognition_recall(
     ends = np.concatenate([np.asarray(truth.t1_s, dtype=np.float64), np.asarray(truth.t2_s, dtype=np.float64)])
     others = np.concatenate([np.asarray(truth.t2_s, dtype=np.float64), np.asarray(truth.t1_s, dtype=np.float64)])
 
-    def first_within(cands: Sequence[object], windows: Sequence[tuple[float, float]]) -> float:
-        for r, c in enumerate(cands, start=1):
-            t = time_of[c.place_id]  # type: ignore[attr-defined]
+    def first_within(ids: Sequence[str], windows: Sequence[tuple[float, float]]) -> float:
+        for r, pid in enumerate(ids, start=1):
+            t = time_of[pid]
             if any(lo <= t <= hi for lo, hi in windows):
                 return float(r)
         return math.inf
@@ -292,11 +306,7 @@ def recognition_recall(
             continue
         window = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
         query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
-        skip = lambda pid, t2=t2: excluded(pid, t2)  # noqa: E731
-        if verifier is None:
-            cands: Sequence[object] = recognizer.candidates(query, max_k, exclude=skip)
-        else:
-            cands = verifier.rank(recognizer, query, max_k, shortlist=verify_shortlist, exclude=skip)
+        cands = _ranked_ids(recognizer, verifier, query, max_k, verify_shortlist, lambda pid, t2=t2: excluded(pid, t2))
         ranks.append(first_within(cands, [window]))
         windows = [window]
         for t_other in np.unique(others[np.abs(ends - t2) <= tolerance_s]).tolist():
@@ -407,12 +417,8 @@ def simulated_recall(
         ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
         covered.append(bool(ok))
         rank = math.inf
-        if verifier is None:
-            cands: Sequence[object] = recognizer.candidates(q, max_k)
-        else:
-            cands = verifier.rank(recognizer, q, max_k, shortlist=verify_shortlist)
-        for r, c in enumerate(cands, start=1):
-            if c.place_id in ok:  # type: ignore[attr-defined]
+        for r, pid in enumerate(_ranked_ids(recognizer, verifier, q, max_k, verify_shortlist), start=1):
+            if pid in ok:
                 rank = r
                 break
         ranks.append(rank)
