@@ -116,6 +116,56 @@ def main() -> None:
     logs_table(args, cfg)
 
 
+def fitted(table: dict[str, dict], logs: list[str], grid: list, held: str | None = None) -> object:
+    """Leave one log out: the grid point with the best mean recall@5 on the logs other than ``held``; without
+    ``held``, the one whose worst log is best (the default's rule). Ties go to the smaller point."""
+
+    def smaller(g: object) -> tuple:
+        return tuple(-x for x in g) if isinstance(g, tuple) else (-g,)  # type: ignore[operator]
+
+    if held is None:
+        return max(grid, key=lambda g: (min(table[n][g]["recall_at_5"] for n in logs), *smaller(g)))
+    train = [n for n in logs if n != held]
+    return max(grid, key=lambda g: (sum(table[n][g]["recall_at_5"] for n in train), *smaller(g)))
+
+
+def held_out(table: dict[str, dict], logs: list[str], grid: list, name: str) -> list[dict]:
+    """Each log held out in turn with the grid point :func:`fitted` on the others: printed, and the rows."""
+    print(f"{'held out':<10} {name:>16} {'R@1':>6} {'R@5':>6}")
+    out = []
+    for held in logs:
+        best = fitted(table, logs, grid, held)
+        row = table[held][best]
+        out.append({"held_out": held, name: best, **row})
+        print(f"{held:<10} {best!s:>16} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
+    return out
+
+
+def recall_row(
+    args: argparse.Namespace,
+    cfg: RecognitionConfig,
+    name: str,
+    log: object,
+    rel: object,
+    full: object,
+    shortlist: int = 0,
+) -> dict:
+    """:func:`recognition_recall` with the submap lengths of ``args`` (verified when ``shortlist`` > 0), as a row
+    with the CPU per query (``time.process_time``, the map's construction included)."""
+    c0 = time.process_time()
+    res = recognition_recall(
+        log,  # type: ignore[arg-type]
+        rel,  # type: ignore[arg-type]
+        cfg,
+        name=name,
+        submap_half_path_m=args.half_path,
+        related=full,  # type: ignore[arg-type]
+        submap_behind_m=args.behind,
+        verify_shortlist=shortlist,
+    )
+    return res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
+
+
 def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
     """The main table: per log, the recall of retrieval and (``--verify`` > 0) after verifying the top N."""
     rows = []
@@ -129,12 +179,7 @@ def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
         log = read_laser_log(args.data / f"{name}.sort.bag")
         full = read_relations(args.data / f"{name}.relations")
         rel = full.subset(args.every_of[name])
-        c0 = time.process_time()
-        res = recognition_recall(
-            log, rel, cfg, name=name, submap_half_path_m=args.half_path, related=full, submap_behind_m=args.behind
-        )
-        cpu = time.process_time() - c0
-        row = res.to_dict() | {"seconds": time.perf_counter() - t0, "cpu_s_per_query": cpu / max(res.ranks.size, 1)}
+        row = recall_row(args, cfg, name, log, rel, full) | {"seconds": time.perf_counter() - t0}
         line = (
             f"{name:<10} {row['places']:>6} {row['loop_relations']:>6} {100 * row['recall_at_1']:>5.1f}% "
             f"{100 * row['recall_at_5']:>5.1f}% {row['facing_relations']:>6} {100 * row['recall_at_1_facing']:>5.1f}% "
@@ -142,18 +187,7 @@ def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
             f"{100 * row['recall_at_5_related']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
         )
         if args.verify:
-            c0 = time.process_time()
-            ver = recognition_recall(
-                log,
-                rel,
-                cfg,
-                name=name,
-                submap_half_path_m=args.half_path,
-                related=full,
-                submap_behind_m=args.behind,
-                verify_shortlist=args.verify,
-            ).to_dict()
-            ver["cpu_s_per_query"] = (time.process_time() - c0) / max(res.ranks.size, 1)
+            ver = recall_row(args, cfg, name, log, rel, full, args.verify)
             row["verified"] = ver | {"shortlist": args.verify}
             line += (
                 f" | {100 * ver['recall_at_1']:>5.1f}% {100 * ver['recall_at_5']:>5.1f}% "
@@ -177,33 +211,14 @@ def verify_folds(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
         rel = full.subset(args.every_of[name])
         table[name] = {}
         for n in args.shortlists:
-            c0 = time.process_time()
-            res = recognition_recall(
-                log,
-                rel,
-                cfg,
-                name=name,
-                submap_half_path_m=args.half_path,
-                related=full,
-                submap_behind_m=args.behind,
-                verify_shortlist=n,
-            )
-            row = res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
-            table[name][n] = row
+            row = table[name][n] = recall_row(args, cfg, name, log, rel, full, n)
             print(
                 f"  {name:<10} shortlist {n:>3}: loops {row['loop_relations']:>4} R@1 {100 * row['recall_at_1']:5.1f}%  "
                 f"R@5 {100 * row['recall_at_5']:5.1f}%  cpu {1000 * row['cpu_s_per_query']:.0f} ms/query",
                 flush=True,
             )
-    print(f"{'held out':<10} {'shortlist':>9} {'R@1':>6} {'R@5':>6}")
-    out = []
-    for held in args.logs:
-        train = [n for n in args.logs if n != held]
-        best = max(args.shortlists, key=lambda k: (sum(table[n][k]["recall_at_5"] for n in train), -k))
-        row = table[held][best]
-        out.append({"held_out": held, "shortlist": best, **row})
-        print(f"{held:<10} {best:>9} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
-    worst = max(args.shortlists, key=lambda k: (min(table[n][k]["recall_at_5"] for n in args.logs), -k))
+    out = held_out(table, args.logs, args.shortlists, "shortlist")
+    worst = fitted(table, args.logs, args.shortlists)
     print(f"best on the worst log: shortlist {worst}")
     if args.json:
         args.json.write_text(
@@ -258,14 +273,7 @@ def folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
                 f"R@5 {100 * table[name][r]['recall_at_5']:5.1f}%",
                 flush=True,
             )
-    print(f"{'held out':<10} {'fitted radius':>13} {'R@1':>6} {'R@5':>6}")
-    out = []
-    for held in args.logs:
-        train = [n for n in args.logs if n != held]
-        best = max(args.grid, key=lambda r: (sum(table[n][r]["recall_at_5"] for n in train), -r))
-        row = table[held][best]
-        out.append({"held_out": held, "d2_max_range_m": best, **row})
-        print(f"{held:<10} {best:>13.1f} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
+    out = held_out(table, args.logs, args.grid, "d2_max_range_m")
     if args.json:
         args.json.write_text(
             json.dumps({"folds": out, "grid": {n: {str(r): v for r, v in t.items()} for n, t in table.items()}}, indent=2)
@@ -297,12 +305,11 @@ def submap_folds(args: argparse.Namespace, base: RecognitionConfig) -> None:
     print(f"{'held out':<10} {'half-path':>9} {'range':>6} {'R@1':>6} {'R@5':>6}")
     out = []
     for held in args.logs:
-        train = [n for n in args.logs if n != held]
-        best = max(grid, key=lambda g: (sum(table[n][g]["recall_at_5"] for n in train), -g[0], -g[1]))
+        best = fitted(table, args.logs, grid, held)
         row = table[held][best]
         out.append({"held_out": held, "half_path_m": best[0], "match_max_range_m": best[1], **row})
         print(f"{held:<10} {best[0]:>9.1f} {best[1]:>6.1f} {100 * row['recall_at_1']:>5.1f}% {100 * row['recall_at_5']:>5.1f}%")
-    worst = max(grid, key=lambda g: (min(table[n][g]["recall_at_5"] for n in args.logs), -g[0], -g[1]))
+    worst = fitted(table, args.logs, grid)
     print(f"best on the worst log: half-path {worst[0]:g} m, match range {worst[1]:g} m")
     if args.json:
         args.json.write_text(
