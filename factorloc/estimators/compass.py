@@ -826,7 +826,7 @@ def _pose_from_bearings(
         checks.append(Check.flag("compass.pose.solvable", "resection solvable", False, failure="singular resection"))
     else:
         cov = np.array(final.covariance)
-        leverage, extra = _group_leverage(pts[inl], final.pose, weights[inl], groups[inl])
+        leverage, extra = _group_leverage(pts[inl], final.pose, weights[inl], cell_m=config.pose_group_m)
         s_res = max(final.residual_sigma_rad, config.pose_residual_floor_px * pixel_rad)
         with np.errstate(invalid="ignore", over="ignore"):
             cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
@@ -919,36 +919,46 @@ def _pose_from_bearings(
     return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
 
 
-def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, groups: np.ndarray) -> tuple[float, np.ndarray]:
+def _group_leverage(
+    points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, groups: np.ndarray | None = None, cell_m: float = 0.3
+) -> tuple[float, np.ndarray]:
     """The dominant group of bearings: its share of the pose's information, and what the covariance lacks without it.
 
-    With ``H = Σ_g H_g`` the weighted normal matrix of the bearings at ``pose`` (unit σ), the group ``g*`` of the
-    largest ``λ_max(H^-½ H_g H^-½)`` (its share of the information in some direction, in [0, 1]) is returned with
-    ``(H − H_g*)⁻¹ − H⁻¹`` (PSD; infinite when the rest is singular): added (× σ²) to the covariance, the pose
-    is as uncertain in every direction as the other groups alone make it — a direction that rests on one group
-    is not trusted beyond what the others verify.
+    The groups are the points' cells on four grids of ``cell_m`` offset by half a cell in x, in y and in both, so
+    that any cluster smaller than half a cell in each direction falls whole into one cell of at least one grid: a
+    near object whose false matches straddle a cell boundary does not split into two groups that hide each other
+    (``docs/calibration/vision.md``). With ``H = Σ_g H_g`` the weighted normal matrix of the bearings at ``pose``
+    (unit σ, for each grid), the group ``g*`` of the largest ``λ_max(H^-½ H_g H^-½)`` over the four grids (its share
+    of the information in some direction, in [0, 1]) is returned with ``(H − H_g*)⁻¹ − H⁻¹`` (PSD; infinite when
+    the rest is singular): added (× σ²) to the covariance, the pose is as uncertain in every direction as the other
+    groups alone make it — a direction that rests on one group is not trusted beyond what the others verify.
     """
     d = points_xy_m - np.array([pose.x, pose.y])
     r2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
     jac = np.column_stack([d[:, 1] / r2, -d[:, 0] / r2, -np.ones(len(d))])
     outer = weights[:, None, None] * jac[:, :, None] * jac[:, None, :]
-    uniq, inverse = np.unique(groups, return_inverse=True)
-    gh = np.zeros((len(uniq), 3, 3))
-    np.add.at(gh, inverse.ravel(), outer)
-    h = gh.sum(axis=0)
+    h = outer.sum(axis=0)
     w, v = np.linalg.eigh(h)
     if w[0] <= 0.0:
         return 1.0, np.full((3, 3), np.inf)
     s = v @ np.diag(w**-0.5) @ v.T
-    shares = np.linalg.eigvalsh(s[None] @ gh @ s[None])[:, -1]
-    g = int(np.argmax(shares))
-    rest = h - gh[g]
+    best_share, best_h = -1.0, None
+    for off in ((0.0, 0.0), (0.5, 0.0), (0.0, 0.5), (0.5, 0.5)):
+        labels = _groups(points_xy_m + np.array(off) * cell_m, cell_m)
+        uniq, inverse = np.unique(labels, return_inverse=True)
+        gh = np.zeros((len(uniq), 3, 3))
+        np.add.at(gh, inverse.ravel(), outer)
+        shares = np.linalg.eigvalsh(s[None] @ gh @ s[None])[:, -1]
+        g = int(np.argmax(shares))
+        if shares[g] > best_share:
+            best_share, best_h = float(shares[g]), gh[g]
+    rest = h - best_h
     wr = np.linalg.eigvalsh(rest)
     if wr[0] <= 1e-12 * w[-1]:
-        return float(np.clip(shares[g], 0.0, 1.0)), np.full((3, 3), np.inf)
+        return float(np.clip(best_share, 0.0, 1.0)), np.full((3, 3), np.inf)
     with np.errstate(invalid="ignore", over="ignore"):
         extra = np.linalg.inv(rest) - np.linalg.inv(h)
-    return float(np.clip(shares[g], 0.0, 1.0)), 0.5 * (extra + extra.T)
+    return float(np.clip(best_share, 0.0, 1.0)), 0.5 * (extra + extra.T)
 
 
 def _groups(points_xy_m: np.ndarray, cell_m: float) -> np.ndarray:

@@ -445,3 +445,23 @@ def test_a_panorama_query_without_depth_commits_at_the_spot_only() -> None:
             assert not est.reliable or _err(est, truth.theta) < 3.0 * est.sigma("theta")
             assert est.diagnostics["inliers"] >= compass.CompassConfig().min_inliers  # the bound was computed: not vacuous
             assert est.diagnostics["parallax_bound_rad"] == math.inf
+
+
+def test_the_dominant_group_does_not_depend_on_where_the_cell_boundaries_fall() -> None:
+    """Two false matches on a near object hide each other when a cell boundary splits them (seen on a simulated
+    view: an object at x = 3.59–3.61 m straddles 12 × 0.3 m): the object's share and the covariance it adds must be
+    the same wherever the scene sits against the grid (``_group_leverage`` uses four half-cell-offset grids)."""
+    from factorloc.estimators.compass import _group_leverage
+
+    wall = np.column_stack([np.linspace(0.05, 6.0, 30), np.zeros(30)])  # 30 bearings on one far wall
+    obj = np.array([[3.59, 1.6], [3.61, 1.62]])  # two on a near object, 2 cm apart
+    out = []
+    for dx in (0.0, 0.1, -0.1, 0.05):
+        pts = np.vstack([wall, obj]) + [dx, 0.0]
+        out.append(_group_leverage(pts, Pose2(3.0 + dx, 3.5, 0.3), np.ones(len(pts)), cell_m=0.3))
+    share0, extra0 = out[0]
+    assert share0 > 0.7  # the pose's position across the wall rests on the object
+    assert np.sqrt(extra0[0, 0]) > 1.0  # without it the position along the wall is barely known
+    for share, extra in out[1:]:
+        assert share == pytest.approx(share0, rel=1e-9)
+        np.testing.assert_allclose(extra, extra0, rtol=1e-6)
