@@ -919,9 +919,7 @@ def _pose_from_bearings(
     return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
 
 
-def _group_leverage(
-    points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, groups: np.ndarray | None = None, cell_m: float = 0.3
-) -> tuple[float, np.ndarray]:
+def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, *, cell_m: float) -> tuple[float, np.ndarray]:
     """The dominant group of bearings: its share of the pose's information, and what the covariance lacks without it.
 
     The groups are the points' cells on four grids of ``cell_m`` offset by half a cell in x, in y and in both, so
