@@ -252,3 +252,19 @@ def test_every_gating_knob_is_a_config_field() -> None:
     cfg = Config.from_dict({"gating": {"full_pose_whole": False, "drop_seeded": False, "undetermined_sigma_m": 5.0}})
     assert (cfg.gating.full_pose_whole, cfg.gating.drop_seeded, cfg.gating.undetermined_sigma_m) == (False, False, 5.0)
     assert Config.from_dict(cfg.to_dict()) == cfg
+
+
+def test_an_estimate_measures_a_position_only_where_the_undetermined_rule_accepts_it() -> None:
+    from factorloc.gating import GatingConfig, fixes_full_pose, measures_position
+
+    limit = GatingConfig().undetermined_sigma_m  # 15 m: half the σ an ICP estimate states along a corridor
+    pose = Estimate.pose("icp", Pose2(1.0, 2.0, 0.1), 0.02, 0.03, 0.01)
+    corridor = Estimate.pose("icp", Pose2(1.0, 2.0, 0.1), 30.0, 0.03, 0.01)  # unknown along x
+    heading = Estimate.heading("compass", 0.1, 0.01)
+    assert measures_position(pose, limit) and fixes_full_pose(pose, limit)
+    assert not measures_position(corridor, limit) and not fixes_full_pose(corridor, limit)
+    assert not measures_position(heading, limit) and not fixes_full_pose(heading, limit)
+    assert measures_position(Estimate.position("icp", 1.0, 2.0, 0.02, 0.02), limit)
+    assert not fixes_full_pose(Estimate.position("icp", 1.0, 2.0, 0.02, 0.02), limit)  # no heading
+    unreliable = Estimate.pose("icp", Pose2(1.0, 2.0, 0.1), 0.02, 0.03, 0.01, reliable=False)
+    assert measures_position(unreliable, limit) and not fixes_full_pose(unreliable, limit)

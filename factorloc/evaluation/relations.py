@@ -52,13 +52,14 @@ from scipy.stats import chi2
 from factorloc.config import Config
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import DatasetError, InputError
-from factorloc.estimators.icp import IcpStep, position_determined
+from factorloc.estimators.icp import IcpStep
 from factorloc.estimators.odometry import OdometryStep
 from factorloc.estimators.odometry import estimate as odometry_estimate
 from factorloc.evaluation.relations_data import Relations, read_relations
 from factorloc.evaluation.relations_lattice import TruthRounding
 from factorloc.evaluation.relations_lattice import truth_rounding as find_truth_rounding
 from factorloc.evaluation.relations_report import METHODS, RelationResult, format_table, summarize, unrecovered_breakdown
+from factorloc.gating import GatingConfig, measures_position
 from factorloc.geometry import Pose2
 from factorloc.odometry_model import OdometryModel
 from factorloc.parallel import Executor, SerialExecutor, TaskFailure
@@ -85,7 +86,7 @@ _CHI2_3SIGMA_2DOF = float(chi2.ppf(0.9973002039367398, 2))
 
 def _position_not_measured(est: Estimate) -> bool:
     """A degenerate ICP result: heading-only, or a pose whose position is unknown along a corridor."""
-    return not position_determined(est)
+    return not measures_position(est, GatingConfig().undetermined_sigma_m)
 
 
 def _errors(true: Pose2, est: Pose2) -> tuple[float, float]:

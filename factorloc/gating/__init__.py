@@ -20,7 +20,7 @@ from factorloc.estimators.base import sigma_checks
 from factorloc.gating.config import GatingConfig
 from factorloc.gating.consistency import GROUPS, Verdict, consistency_code, consistency_gate
 from factorloc.gating.gate import Gated, StepRun, gate, report_reason
-from factorloc.gating.rules import position_determined, seed_audit, seed_misfit
+from factorloc.gating.rules import fixes_full_pose, measures_position, position_determined, seed_audit, seed_misfit
 
 __all__ = [
     "GROUPS",
@@ -31,6 +31,8 @@ __all__ = [
     "consistency_code",
     "consistency_gate",
     "gate",
+    "fixes_full_pose",
+    "measures_position",
     "position_determined",
     "report_reason",
     "seed_audit",

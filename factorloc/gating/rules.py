@@ -20,7 +20,16 @@ from factorloc.stats import sym2_eigenvalues
 from factorloc.types import Component, Estimate
 from factorloc.verdicts import Check, Unit, render_checks
 
-__all__ = ["POSITION_DETERMINED", "SEED_AUDIT", "SEED_AUDIT_WINDOWED", "position_determined", "seed_audit", "seed_misfit"]
+__all__ = [
+    "POSITION_DETERMINED",
+    "SEED_AUDIT",
+    "SEED_AUDIT_WINDOWED",
+    "fixes_full_pose",
+    "measures_position",
+    "position_determined",
+    "seed_audit",
+    "seed_misfit",
+]
 
 #: Rule codes of this module.
 POSITION_DETERMINED = "gate.undetermined.position"
@@ -41,6 +50,18 @@ def position_determined(covariance: np.ndarray, limit_sigma_m: float) -> Check:
     else:
         sigma = math.inf
     return Check.at_most(POSITION_DETERMINED, "largest σ of the fused position", sigma, limit_sigma_m, Unit.METRE)
+
+
+def measures_position(estimate: Estimate, limit_sigma_m: float) -> bool:
+    """Whether ``estimate`` measures a position that :func:`position_determined` accepts at ``limit_sigma_m``: not
+    heading-only, and not "unknown" along some direction (an ICP position along a corridor)."""
+    return estimate.measures(Component.X) and position_determined(estimate.covariance, limit_sigma_m).passed
+
+
+def fixes_full_pose(estimate: Estimate, limit_sigma_m: float) -> bool:
+    """Whether ``estimate`` is reliable, measures the full pose (x, y, θ) and :func:`measures_position`: what a loop
+    closure or a verified place needs."""
+    return estimate.reliable and estimate.kind == "full" and measures_position(estimate, limit_sigma_m)
 
 
 def seed_misfit(estimate: Estimate) -> tuple[Check, ...]:

@@ -41,7 +41,8 @@ import numpy as np
 from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import InputError
 from factorloc.estimators.base import Hypotheses
-from factorloc.estimators.icp import IcpReference, estimate, position_determined
+from factorloc.estimators.icp import IcpReference, estimate
+from factorloc.gating import GatingConfig, fixes_full_pose
 from factorloc.geometry import Pose2, rotate_covariance
 from factorloc.mapping.config import MapConfig
 from factorloc.mapping.result import Closure, MapResult, _adjoint, relative_covariance
@@ -94,7 +95,7 @@ def _body_covariance(T_ref_query: Pose2, covariance_ref: np.ndarray) -> np.ndarr
 
 def _full_position(est: Estimate) -> bool:
     """A reliable full pose whose position is measured in both directions (not degenerate along a corridor)."""
-    return est.reliable and est.kind == "full" and position_determined(est)
+    return fixes_full_pose(est, GatingConfig().undetermined_sigma_m)
 
 
 def _noise(covariance: np.ndarray):  # noqa: ANN202 - gtsam has no stubs

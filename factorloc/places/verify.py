@@ -8,9 +8,9 @@ scan match) handle it. Here a shortlist of the places :class:`~factorloc.places.
 verified by the ICP step of the hierarchy (:mod:`factorloc.estimators.icp`) with no hypothesis at all: its
 global initialization (the correlative search over the whole window and the full circle of headings, refined by
 ICP) and its reliability rules, against the place's own scan or cloud cut. A place is *verified*
-(``places.verified``) when that estimate is reliable and fixes a full pose
-(:func:`~factorloc.estimators.icp.position_determined`): what the rules accept for a loop closure, including
-their free-space test and their ambiguity tests against the distinct rivals.
+(``places.verified``) when that estimate is reliable and fixes a full pose (:func:`~factorloc.gating.fixes_full_pose`,
+the gating layer's undetermined-position rule): what the rules accept for a loop closure, including their
+free-space test and their ambiguity tests against the distinct rivals.
 
 :meth:`PlaceVerifier.rank` orders the shortlist: verified places first, by the score the ICP rules judged
 (``icp.score``: fitness − violation weight × the share in seen-free space), then the others in retrieval order. The
@@ -28,7 +28,8 @@ from dataclasses import dataclass
 from factorloc._validate import positive_int
 from factorloc.errors import InputError, UnusableInputError
 from factorloc.estimators.base import Hypotheses
-from factorloc.estimators.icp import IcpConfig, IcpReference, IcpStep, position_determined
+from factorloc.estimators.icp import IcpConfig, IcpReference, IcpStep
+from factorloc.gating import GatingConfig, fixes_full_pose
 from factorloc.places.placemap import PlaceMap
 from factorloc.places.recognition import PlaceCandidate, PlaceRecognizer
 from factorloc.types import Estimate, Query
@@ -116,7 +117,7 @@ class PlaceVerifier:
         if est is None:
             note = "the place holds no scan or cloud" if prepared is None else "the query holds no scan or cloud"
             return VerifiedPlace(candidate, Check.flag("places.verified", label, False, note=note), None, math.nan)
-        ok = est.reliable and est.kind == "full" and position_determined(est)
+        ok = fixes_full_pose(est, GatingConfig().undetermined_sigma_m)
         note = "" if ok else ("ICP: " + est.reason if not est.reliable else "ICP does not fix the full pose")
         return VerifiedPlace(candidate, Check.flag("places.verified", label, ok, note=note), est, _score(est))
 

@@ -24,7 +24,7 @@ from factorloc.estimators.icp.config import (
     ReliabilityConfig,
     SeedConfig,
 )
-from factorloc.estimators.icp.covariance import UNCONSTRAINED_SIGMA_M, constraint_strength, position_determined
+from factorloc.estimators.icp.covariance import UNCONSTRAINED_SIGMA_M, constraint_strength
 from factorloc.estimators.icp.reference import IcpReference, prepare_reference, query_points
 from factorloc.estimators.icp.step import IcpStep, estimate
 
@@ -40,7 +40,6 @@ __all__ = [
     "SeedConfig",
     "constraint_strength",
     "estimate",
-    "position_determined",
     "prepare_reference",
     "query_points",
 ]

@@ -33,7 +33,6 @@ from factorloc.registration.covariance import (
     scale_heading,
 )
 from factorloc.registration.icp2d import IcpResult
-from factorloc.types import Estimate
 from factorloc.verdicts import ROUNDING_TOLERANCE
 
 __all__ = [
@@ -43,7 +42,6 @@ __all__ = [
     "heading_strength",
     "covariance",
     "largest_sigma_position",
-    "position_determined",
     "sigma_bias",
     "smallest_sigma_position",
     "unconstrained_along",
@@ -207,17 +205,6 @@ def smallest_sigma_position(cov: np.ndarray) -> float:
     """Square root of the smallest eigenvalue of the 2×2 position block (m; closed form, clamped at 0)."""
     a, b, c = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
     return math.sqrt(max(0.5 * (a + c) - math.sqrt(0.25 * (a - c) ** 2 + b * b), 0.0))
-
-
-def position_determined(estimate: Estimate) -> bool:
-    """Whether an ICP estimate measures its position in both directions: it has a position (not heading-only) and
-    the largest eigenvalue of its position covariance is below ``(UNCONSTRAINED_SIGMA_M / 2)²`` (m²) — the gating
-    layer's ``undetermined_sigma_m``. A position unknown along a corridor (:func:`unconstrained_along`) states
-    :data:`UNCONSTRAINED_SIGMA_M` there and fails; no measured covariance comes near the limit (a few cm to a metre),
-    so the verdict does not hang on rounding."""
-    if not estimate.measures("x"):
-        return False
-    return bool(np.linalg.eigvalsh(estimate.covariance[:2, :2])[-1] < (0.5 * UNCONSTRAINED_SIGMA_M) ** 2)
 
 
 def unconstrained_along(result: IcpResult, cov: np.ndarray) -> np.ndarray:
