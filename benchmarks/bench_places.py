@@ -20,6 +20,7 @@ Usage::
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --verify-folds --every 10 1 1  # leave-one-log-out shortlist
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --rank-by submap_match   # scan-to-submap matching
     nice -n 10 .venv/bin/python benchmarks/bench_places.py --submap-folds --every 5 1 1  # leave-one-log-out submap grid
+    nice -n 10 .venv/bin/python benchmarks/bench_places.py --every 5 1 1 --truth   # is the verified first place right?
 
 The main table gives the recall of retrieval and, beside it, after geometric verification
 (:class:`~factorloc.places.PlaceVerifier`: the top ``--verify`` places, default
@@ -31,6 +32,11 @@ match's two parameters chosen by looking at data — the half-length of the plac
 (``--half-paths``, m of odometry path) and the match's query range (``--match-ranges``, m) — leave one log out: for
 each log, the grid point with the best mean recall@5 on the two others (ties: the smaller), reported on it; the
 printed "worst held-out" line names the grid point whose worst held-out fold is best (the default's rule).
+
+``--truth`` judges the first place of each verified ranking against the trajectory fitted to all of the log's
+relations (:func:`~factorloc.evaluation.truth.log_truth`, places and queries posed within ``--truth-gap`` s of a
+relation stamp): a second table with how many such places could be judged, the share whose estimate is more than
+0.5 m or 5° off, the share off by more than 90° in heading, and the share beyond 3σ (``docs/places.md``).
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation.folds import LOGS
 from factorloc.evaluation.places import SUBMAP_AHEAD_M, SUBMAP_BEHIND_M, recognition_recall
 from factorloc.evaluation.relations import read_relations
+from factorloc.evaluation.truth import log_truth
 from factorloc.places import VERIFY_SHORTLIST, RecognitionConfig
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "laser"
@@ -87,6 +94,8 @@ def main() -> None:
     ap.add_argument("--submap-folds", action="store_true", help="fit the submap half-length and match range leave-one-log-out")
     ap.add_argument("--half-paths", type=float, nargs="*", default=[2.0, 4.0, 6.0])
     ap.add_argument("--match-ranges", type=float, nargs="*", default=[12.0, 20.0])
+    ap.add_argument("--truth", action="store_true", help="judge the verified first place against the fitted truth")
+    ap.add_argument("--truth-gap", type=float, default=1.0, help="how far (s) from a relation stamp --truth poses a scan")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     if len(args.every) not in (1, len(args.logs)):
@@ -149,6 +158,7 @@ def recall_row(
     rel: object,
     full: object,
     shortlist: int = 0,
+    truth: object = None,
 ) -> dict:
     """:func:`recognition_recall` with the submap lengths of ``args`` (verified when ``shortlist`` > 0), as a row
     with the CPU per query (``time.process_time``, the map's construction included)."""
@@ -162,6 +172,7 @@ def recall_row(
         related=full,  # type: ignore[arg-type]
         submap_behind_m=args.behind,
         verify_shortlist=shortlist,
+        truth=truth,  # type: ignore[arg-type]
     )
     return res.to_dict() | {"cpu_s_per_query": (time.process_time() - c0) / max(res.ranks.size, 1)}
 
@@ -174,6 +185,7 @@ def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
         f"{'R@5rel':>6} {'s':>6} {'cpu ms/q':>8}"
         + (f" | verified top {args.verify}: R@1 R@5 R@1rel R@5rel cpu ms/q" if args.verify else "")
     )
+    judged = []
     for name in args.logs:
         t0 = time.perf_counter()
         log = read_laser_log(args.data / f"{name}.sort.bag")
@@ -187,8 +199,11 @@ def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
             f"{100 * row['recall_at_5_related']:>5.1f}% {row['seconds']:>6.1f} {1000 * row['cpu_s_per_query']:>8.1f}"
         )
         if args.verify:
-            ver = recall_row(args, cfg, name, log, rel, full, args.verify)
+            truth = log_truth(full, log.odometry, max_gap_s=args.truth_gap) if args.truth else None
+            ver = recall_row(args, cfg, name, log, rel, full, args.verify, truth)
             row["verified"] = ver | {"shortlist": args.verify}
+            if truth is not None:
+                judged.append((name, ver))
             line += (
                 f" | {100 * ver['recall_at_1']:>5.1f}% {100 * ver['recall_at_5']:>5.1f}% "
                 f"{100 * ver['recall_at_1_related']:>5.1f}% {100 * ver['recall_at_5_related']:>5.1f}% "
@@ -196,6 +211,14 @@ def logs_table(args: argparse.Namespace, cfg: RecognitionConfig) -> None:
             )
         rows.append(row)
         print(line, flush=True)
+    if judged:
+        print(f"\nverified first place against the fitted truth (scans within {args.truth_gap:g} s of a relation stamp)")
+        print(f"{'log':<10} {'verified':>8} {'judged':>6} {'>0.5m/5°':>9} {'>90°':>6} {'>3σ':>6}")
+        for name, v in judged:
+            print(
+                f"{name:<10} {v['top_verified']:>8} {v['top_judged']:>6} {100 * v['top_wrong_share']:>8.1f}% "
+                f"{100 * v['top_flipped_share']:>5.1f}% {100 * v['top_confidently_wrong_share']:>5.1f}%"
+            )
     if args.json:
         args.json.write_text(json.dumps({"config": cfg.__dict__, "logs": rows}, indent=2))
 

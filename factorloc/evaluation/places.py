@@ -19,6 +19,12 @@ ground truth (``(t1', t2)`` or ``(t2, t1')``, its correct places found by the sa
 figure beside the issue's, never instead of it: a pass the ground truth does not relate to ``t2`` still counts
 as wrong.
 
+Neither rule says whether a *verified* place's pose is right: the protocol judges the place by time, not the
+alignment the verifier made. Given ``truth`` (a :class:`~factorloc.evaluation.truth.LogTruth`, the trajectory fitted
+to all the relations), :func:`recognition_recall` also judges the first place of each verified ranking — the
+answer a user takes — against it (``RecallResult.top_errors``): the error of its estimate of the query pose in the
+place's frame, and that error's squared Mahalanobis distance under the estimate's own covariance.
+
 With ``RecognitionConfig(rank_by="submap_match")`` each place holds a local submap: the scans whose odometry path
 length lies within ``submap_half_path_m`` of the place's, stitched by odometry into its frame
 (:func:`path_submaps`). A place whose submap holds a scan taken within ``exclude_window_s / 2`` of ``t2`` is left
@@ -39,8 +45,10 @@ from factorloc.datasets.rosbag import LaserLog
 from factorloc.errors import InputError
 from factorloc.estimators.icp import IcpConfig
 from factorloc.evaluation.relations import Relations
-from factorloc.geometry import Pose2
-from factorloc.places import Place, PlaceMap, PlaceRecognizer, PlaceVerifier, RecognitionConfig
+from factorloc.evaluation.truth import LogTruth
+from factorloc.geometry import Pose2, wrap_angle
+from factorloc.odometry_model import CHI2_3SIGMA_2DOF
+from factorloc.places import Place, PlaceMap, PlaceRecognizer, PlaceVerifier, RecognitionConfig, VerifiedPlace
 from factorloc.places.recognition import local_submap
 from factorloc.types import Odometry, Query, Reference
 
@@ -176,6 +184,14 @@ class RecallResult:
     place it comes back to facing the other way); ``places`` the size of the map. ``ranks_related[i]`` (≤
     ``ranks[i]``) the rank of the first place correct for this relation or for another loop relation of the same
     query scan in the ground truth (the module docstring); None when not computed.
+
+    ``top_errors`` (with a verified ranking and a :class:`~factorloc.evaluation.truth.LogTruth`; else None): per
+    loop relation, the first verified place's estimate of the query pose against the truth, in the place's frame —
+    ``[position error m, heading error rad (estimate − truth, wrapped), squared Mahalanobis distance of the
+    position error (2 dof), true place–query distance m, 1 when beyond 3σ in position (χ², 2 dof) or heading]``,
+    the σ the estimate's covariance plus the truth's (``LogTruth.sigma`` at both ends); a row of NaN when no
+    place of the ranking is verified, or the truth cannot pose the pair (``LogTruth.relative``). ``top_verified``
+    whether the ranking's first place is verified.
     """
 
     log: str
@@ -184,6 +200,8 @@ class RecallResult:
     heading_change_rad: np.ndarray
     max_k: int
     ranks_related: np.ndarray | None = None
+    top_errors: np.ndarray | None = None
+    top_verified: np.ndarray | None = None
 
     def _check_k(self, k: int) -> None:
         if not 1 <= k <= self.max_k:
@@ -205,9 +223,36 @@ class RecallResult:
         sel = self.heading_change_rad < max_heading_change_rad
         return float(np.mean(self.ranks[sel] <= k)) if sel.any() else math.nan
 
+    def _judged(self) -> np.ndarray:
+        if self.top_errors is None:
+            raise InputError("this RecallResult has no top_errors (recognition_recall with verify_shortlist and truth)")
+        return self.top_errors[np.isfinite(self.top_errors[:, 0])]
+
+    def top_judged(self) -> int:
+        """How many loop relations have a verified first place the truth can pose."""
+        return int(self._judged().shape[0])
+
+    def top_wrong_share(self, max_position_m: float = 0.5, max_heading_rad: float = math.radians(5.0)) -> float:
+        """Share of the judged verified first places whose estimate is off by more than ``max_position_m`` or
+        ``max_heading_rad`` (NaN when none is judged)."""
+        e = self._judged()
+        return float(np.mean((e[:, 0] > max_position_m) | (np.abs(e[:, 1]) > max_heading_rad))) if e.size else math.nan
+
+    def top_flipped_share(self) -> float:
+        """Share of the judged verified first places whose heading is off by more than 90° (a scanner that sees a
+        corridor ahead aligned to the place's view the other way)."""
+        e = self._judged()
+        return float(np.mean(np.abs(e[:, 1]) > math.pi / 2)) if e.size else math.nan
+
+    def top_confidently_wrong_share(self) -> float:
+        """Share of the judged verified first places beyond 3σ in position (χ², 2 dof, p = 0.9973) or heading, the
+        estimate's covariance plus the truth's (the relations benchmark's rule)."""
+        e = self._judged()
+        return float(np.mean(e[:, 4] > 0)) if e.size else math.nan
+
     def to_dict(self) -> dict[str, object]:
         k5 = min(5, self.max_k)
-        return {
+        out: dict[str, object] = {
             "log": self.log,
             "places": self.places,
             "loop_relations": int(self.ranks.size),
@@ -216,25 +261,57 @@ class RecallResult:
             "facing_relations": int(np.sum(self.heading_change_rad < math.pi / 2)),
             "recall_at_1_facing": self.recall_at_facing(1),
             "recall_at_5_facing": self.recall_at_facing(k5),
-        } | (
-            {}
-            if self.ranks_related is None
-            else {"recall_at_1_related": self.recall_at_related(1), "recall_at_5_related": self.recall_at_related(k5)}
-        )
+        }
+        if self.ranks_related is not None:
+            out |= {"recall_at_1_related": self.recall_at_related(1), "recall_at_5_related": self.recall_at_related(k5)}
+        if self.top_errors is not None:
+            out |= {
+                "top_verified": 0 if self.top_verified is None else int(np.sum(self.top_verified)),
+                "top_judged": self.top_judged(),
+                "top_wrong_share": self.top_wrong_share(),
+                "top_flipped_share": self.top_flipped_share(),
+                "top_confidently_wrong_share": self.top_confidently_wrong_share(),
+            }
+        return out
 
 
-def _ranked_ids(
+def _ranked(
     recognizer: PlaceRecognizer,
     verifier: PlaceVerifier | None,
     query: Query,
     k: int,
     shortlist: int,
     exclude: Callable[[str], bool] | None = None,
-) -> list[str]:
-    """The ids of the top ``k`` places for ``query``: retrieved, or (with a verifier) retrieved and verified."""
+) -> tuple[list[str], VerifiedPlace | None]:
+    """The ids of the top ``k`` places for ``query`` (retrieved, or with a verifier retrieved and verified) and the
+    first of the verified ranking (None without a verifier)."""
     if verifier is None:
-        return [c.place_id for c in recognizer.candidates(query, k, exclude=exclude)]
-    return [v.place_id for v in verifier.rank(recognizer, query, k, shortlist=shortlist, exclude=exclude)]
+        return [c.place_id for c in recognizer.candidates(query, k, exclude=exclude)], None
+    ranked = verifier.rank(recognizer, query, k, shortlist=shortlist, exclude=exclude)
+    return [v.place_id for v in ranked], (ranked[0] if ranked else None)
+
+
+def _top_error(top: VerifiedPlace | None, place_map: PlaceMap, truth: LogTruth, t_place_s: float, t_query_s: float) -> np.ndarray:
+    """``RecallResult.top_errors``' row for a verified ranking's first place (NaN when unverified or unposed)."""
+    nan = np.full(5, np.nan)
+    if top is None or not top.verified or top.estimate is None:
+        return nan
+    T_true = truth.relative(t_place_s, t_query_s)
+    if T_true is None:
+        return nan
+    est = top.estimate.marginal(("x", "y", "theta"))
+    T_wr = place_map[top.place_id].T_world_reference
+    T_est = T_wr.between(Pose2(*est.values))
+    d = T_est.translation - T_true.translation
+    dth = float(wrap_angle(T_est.theta - T_true.theta))
+    c, s = math.cos(T_wr.theta), math.sin(T_wr.theta)
+    R = np.array([[c, -s], [s, c]])
+    # the estimate's covariance in the place's frame, plus the truth's own (both ends, LogTruth.sigma)
+    cov = R.T @ est.covariance[:2, :2] @ R + 2.0 * np.diag(truth.sigma[:2] ** 2)
+    var_th = float(est.covariance[2, 2]) + 2.0 * float(truth.sigma[2]) ** 2
+    d2 = float(d @ np.linalg.solve(cov, d))
+    beyond = d2 > CHI2_3SIGMA_2DOF or abs(dth) > 3.0 * math.sqrt(var_th)
+    return np.array([float(np.hypot(*d)), dth, d2, float(np.hypot(*T_true.translation)), float(beyond)])
 
 
 def recognition_recall(
@@ -255,6 +332,7 @@ def recognition_recall(
     submap_behind_m: float | None = SUBMAP_BEHIND_M,
     verify_shortlist: int = 0,
     icp_config: IcpConfig | None = None,
+    truth: LogTruth | None = None,
 ) -> RecallResult:
     """recall@k of :class:`~factorloc.places.PlaceRecognizer` on the loop relations of ``log`` (see the module).
 
@@ -267,8 +345,14 @@ def recognition_recall(
     ``verify_shortlist``: when > 0, the ranks are those after geometric verification
     (:meth:`~factorloc.places.PlaceVerifier.rank`: that many places retrieved, each verified by the ICP step
     without a hypothesis, with ``icp_config`` (default the library's), the verified first); the excluded places
-    are left out before the shortlist is taken.
+    are left out before the shortlist is taken. ``truth``: with a verified ranking, the first place of each is judged
+    against it (``RecallResult.top_errors``; build it with :func:`~factorloc.evaluation.truth.log_truth` from the
+    whole relations file).
     """
+    if truth is not None and not isinstance(truth, LogTruth):
+        raise InputError(f"truth must be a LogTruth, got {type(truth).__name__}")
+    if truth is not None and not verify_shortlist:
+        raise InputError("truth judges the verified ranking: pass verify_shortlist > 0 with it")
     place_map, place_t = places_along_log(log, spacing_m)
     spans = np.column_stack([place_t, place_t])
     submaps = None
@@ -287,9 +371,9 @@ def recognition_recall(
         a, b = span_of[pid]
         return abs(time_of[pid] - t2) <= half or (a <= t2 + half and b >= t2 - half)
 
-    truth = relations if related is None else related
-    ends = np.concatenate([np.asarray(truth.t1_s, dtype=np.float64), np.asarray(truth.t2_s, dtype=np.float64)])
-    others = np.concatenate([np.asarray(truth.t2_s, dtype=np.float64), np.asarray(truth.t1_s, dtype=np.float64)])
+    rel_all = relations if related is None else related
+    ends = np.concatenate([np.asarray(rel_all.t1_s, dtype=np.float64), np.asarray(rel_all.t2_s, dtype=np.float64)])
+    others = np.concatenate([np.asarray(rel_all.t2_s, dtype=np.float64), np.asarray(rel_all.t1_s, dtype=np.float64)])
 
     def first_within(ids: Sequence[str], windows: Sequence[tuple[float, float]]) -> float:
         for r, pid in enumerate(ids, start=1):
@@ -299,15 +383,18 @@ def recognition_recall(
         return math.inf
 
     t_lo, t_hi = float(log.odometry.stamps_s[0]), float(log.odometry.stamps_s[-1])
-    ranks, ranks_related, dth = [], [], []
+    ranks, ranks_related, dth, top_errors, top_verified = [], [], [], [], []
     for i in range(len(relations)) if indices is None else indices:
         t1, t2 = float(relations.t1_s[i]), float(relations.t2_s[i])
         if log.odometry.distance_between(t1, t2)[0] < local_threshold_m:
             continue
         window = correct_window_s(log, t1, neighbourhood_m, tolerance_s)
         query = Query(scan=log.scans.at(t2, tolerance_s), id=f"t2={t2:.6f}")
-        cands = _ranked_ids(recognizer, verifier, query, max_k, verify_shortlist, lambda pid, t2=t2: excluded(pid, t2))
+        cands, top = _ranked(recognizer, verifier, query, max_k, verify_shortlist, lambda pid, t2=t2: excluded(pid, t2))
         ranks.append(first_within(cands, [window]))
+        if truth is not None:
+            top_verified.append(top is not None and top.verified)
+            top_errors.append(_top_error(top, place_map, truth, time_of[top.place_id] if top else math.nan, t2))
         windows = [window]
         for t_other in np.unique(others[np.abs(ends - t2) <= tolerance_s]).tolist():
             if abs(t_other - t1) <= tolerance_s or not t_lo <= t_other <= t_hi:
@@ -323,6 +410,8 @@ def recognition_recall(
         np.array(dth),
         max_k,
         np.array(ranks_related, dtype=np.float64),
+        None if truth is None else np.array(top_errors, dtype=np.float64).reshape(-1, 5),
+        None if truth is None else np.array(top_verified, dtype=bool),
     )
 
 
@@ -417,7 +506,7 @@ def simulated_recall(
         ok = {pid for pid, d in zip(place_map.ids, np.hypot(*(pos - T.translation).T), strict=True) if d <= neighbourhood_m}
         covered.append(bool(ok))
         rank = math.inf
-        for r, pid in enumerate(_ranked_ids(recognizer, verifier, q, max_k, verify_shortlist), start=1):
+        for r, pid in enumerate(_ranked(recognizer, verifier, q, max_k, verify_shortlist)[0], start=1):
             if pid in ok:
                 rank = r
                 break
