@@ -13,7 +13,7 @@
   (``tracker.prediction`` check). A rejected factor does not enter the graph;
 * **kidnapping**: after :attr:`TrackerConfig.kidnap_after` consecutive queries with places in view but no place
   factor consistent with the prediction (all rejected by the gate, or none reliable), or when the position σ
-  exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
+  grown since the last place factor exceeds :attr:`TrackerConfig.lost_sigma_m`, the tracker re-localizes by place recognition
   (:class:`~factorloc.places.PlaceRecognizer`: top-k places, the hierarchy against each seeded at the pose the
   recognizer gives — the submap match's pose of the query in the place's frame, or the place with the heading of
   the signature's best shift —, their factors gated together and, like the tracking step's, sharing the query's
@@ -33,10 +33,15 @@
   confirms it (a kidnapping: a new chain); neither leaves the kidnap rule to fire as before;
 * **ambiguity** (``tracker.unique``, :attr:`TrackerConfig.refuse_ambiguous`): a recognition whose factors fall into
   two groups of at least ``relocalize_min_places`` agreeing places on two different poses (the consistency gate
-  keeps the larger) starts no chain: no count of places tells the two readings of a point-symmetric room apart.
+  keeps the larger) starts no chain: no count of places tells the two readings of a point-symmetric room apart;
+* **confirmation of a recognized chain** (``tracker.confirmed``, :attr:`TrackerConfig.confirm_relocalization`): a
+  chain recognition started from one scan is flagged until a later query's place factors pass the gate against
+  its prediction (the places of one wrong pass agree with each other; the odometry tying a second scan to the
+  first does not).
 
 Every result carries its :class:`TrackState` and typed checks: the prediction gate per factor, the kidnap rule,
-``tracker.confirmation`` and ``tracker.unique`` when recognition ran,
+``tracker.confirmation`` and ``tracker.unique`` when recognition ran, ``tracker.confirmed`` on a chain recognized
+from one scan until a later query confirms it,
 ``tracker.supported`` (failed when places were in view but none gave a factor consistent with the prediction: the
 pose rests on the odometry alone, possibly after an unseen kidnapping), and ``tracker.jump`` — the squared
 Mahalanobis distance of the new estimate from the prediction (3 dof), which flags any result that moved more than
@@ -157,8 +162,23 @@ class TrackerConfig:
         no evidence between the two readings of a point-symmetric room or an aliased corridor. The tracker stays
         ``LOST`` (or, for the early recognition, ``TRACKING`` flagged) and tries again on the next query. A
         recognized pose that passes the gate against a vouched-for prediction is not refused (the prediction decides).
+    confirm_relocalization
+        A chain that place recognition started from one scan (at start-up, by the kidnap rule, when lost, after a
+        broken odometry) is flagged (``tracker.confirmed`` failed) until a later query's place factors pass the
+        gate against its prediction; the first such query passes it and the chain is vouched for from there. Places
+        of one wrong pass agree with each other (a corridor seen the other way), so the agreement of
+        ``relocalize_min_places`` places on one scan is no confirmation; the odometry tying a second scan to the
+        first is. Measured on the real logs (kidnapped starts in a map of the rest, ``docs/places.md``): every
+        wrong start-up pose the tracker vouched for on its first scan found no consistent factor on the next. A
+        chain started by ``confirm_recognition``'s confirmation rests on two scans already and is not held.
     lost_sigma_m
-        Position σ (largest axis, m) beyond which the tracker re-localizes by place recognition.
+        Position σ (largest axis, m) *grown since the last query whose pose rests on place factors* beyond which
+        the tracker re-localizes by place recognition. The σ the place factors themselves carry does not count:
+        a map's places with their marginal covariance (σ growing with the distance from the first place, 1.5–2 m
+        at the far end of ACES) would otherwise declare the tracker lost on the query after every re-localization
+        there, and it would re-localize, never gated, on every query. A chain recognized from one scan and not
+        confirmed yet (``confirm_relocalization``) counts its whole σ: a vague recognized pose nothing has
+        confirmed is re-localized as soon as its σ exceeds the limit.
     initial_pose
         A known start (world frame); None: the first query is localized by place recognition.
     initial_covariance
@@ -193,6 +213,7 @@ class TrackerConfig:
     confirm_recognition: bool = True
     refuse_ambiguous: bool = True
     confirm_min_places: int = 1
+    confirm_relocalization: bool = True
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
@@ -355,6 +376,12 @@ class Tracker:
         self._last_odometry: Pose2 | None = None
         self._rejected_run = 0
         self._candidate: _Candidate | None = None
+        #: Largest position variance (m²) of the pose at the last query whose pose rests on place factors (0 for a
+        #: chain started from ``initial_pose``): the part of the prediction's σ the lost rule does not count.
+        self._supported_var = 0.0
+        #: The query a chain started by recognition from one scan was recognized on, until a later query's place
+        #: factors confirm it (``confirm_relocalization``); None for a confirmed chain.
+        self._unconfirmed: str | None = None
         self.chains = 0
         self.recognitions = 0
 
@@ -391,6 +418,10 @@ class Tracker:
         candidate, self._candidate = self._candidate, None
         if candidate is not None and accepted:
             checks.append(_refuted_check(candidate, len(accepted)))
+        if self._unconfirmed is not None:
+            checks.append(self._confirmed_check(len(accepted)))
+            if accepted:
+                self._unconfirmed = None
         if accepted:
             self._rejected_run = 0
         elif in_view:
@@ -411,9 +442,13 @@ class Tracker:
             confirmed = self._confirm(query, candidate, delta, Q, checks, t0)
             if confirmed is not None:
                 return confirmed
-        sigma_pos = math.sqrt(max(float(np.linalg.eigvalsh(pred_cov[:2, :2])[-1]), 0.0))
+        var_pos = max(float(np.linalg.eigvalsh(pred_cov[:2, :2])[-1]), 0.0)
+        sigma_pos = math.sqrt(var_pos)
+        # a chain recognized from one scan and not confirmed yet vouches for none of its σ: all of it counts
+        supported_var = 0.0 if self._unconfirmed is not None else self._supported_var
+        sigma_grown = math.sqrt(max(var_pos - supported_var, 0.0))
         kidnap = self._rejected_run >= cfg.kidnap_after
-        lost = sigma_pos > cfg.lost_sigma_m
+        lost = sigma_grown > cfg.lost_sigma_m
         if kidnap or lost:
             checks.append(
                 self._kidnap_check("kidnapping suspected: re-localizing by place recognition")
@@ -422,7 +457,8 @@ class Tracker:
                     "tracker.kidnap",
                     "place factors consistent with the prediction",
                     False,
-                    note=f"position σ {sigma_pos:.2f} m > {cfg.lost_sigma_m} m",
+                    note=f"position σ grown since the last place factor {sigma_grown:.2f} m > {cfg.lost_sigma_m} m "
+                    f"(σ {sigma_pos:.2f} m)",
                     failure="lost: re-localizing",
                 )
             )
@@ -461,6 +497,8 @@ class Tracker:
             for f in factors_for(e, k):
                 graph.add(f)
         pose, cov = self._solve(graph, values, k)
+        if accepted:
+            self._supported_var = max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0)
         checks.append(_jump_check(pose, pred, pred_cov))
         used = tuple(dict.fromkeys(p for e in accepted if (p := split_step_name(e.step)[1]) is not None))
         return self._result(query, TrackState.TRACKING, pose, cov, reports, used, checks, pred, t0)
@@ -528,6 +566,17 @@ class Tracker:
         return self._new_chain(query, [prior, *accepted], reports, used, TrackState.RELOCALIZED, checks, t0)
 
     # --- helpers --------------------------------------------------------------------------
+    def _confirmed_check(self, n_consistent: int) -> Check:
+        """``tracker.confirmed`` on a query of a chain recognized from one scan and not confirmed yet: passed when this
+        query's places gave ``n_consistent`` ≥ 1 factor(s) passing the gate against the prediction."""
+        return Check.at_least(
+            "tracker.confirmed",
+            "a pose recognized from one scan is confirmed by a later query's place factors",
+            n_consistent,
+            1,
+            note=f"recognized at {self._unconfirmed}",
+        )
+
     def _kidnap_check(self, failure: str) -> Check:
         """``tracker.kidnap`` failed: ``_rejected_run`` consecutive queries gave no place factor consistent with the
         prediction; ``failure`` says what the tracker does about it."""
@@ -575,7 +624,9 @@ class Tracker:
         self.chains += 1
         self._rejected_run = 0
         self._candidate = None
+        self._unconfirmed = None
         pose, cov = self._solve(graph, values, k)
+        self._supported_var = max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0) if used else 0.0
         return self._result(query, state, pose, cov, reports, used, checks, None, t0)
 
     def _relocalize(
@@ -651,9 +702,22 @@ class Tracker:
                     self._kidnap_check("place recognition on the first such query disagrees with the prediction: kidnapping")
                 )
             checks.append(Check.flag("tracker.relocalized", "re-localized by place recognition", True, note=note))
-            return self._new_chain(
+            if cfg.confirm_relocalization:
+                checks.append(
+                    Check.flag(
+                        "tracker.confirmed",
+                        "a pose recognized from one scan is confirmed by a later query's place factors",
+                        False,
+                        note=f"recognized on {list(found.places_used)}",
+                        failure="unconfirmed: the next query's places must give a factor consistent with it",
+                    )
+                )
+            result = self._new_chain(
                 query, factors, found.localization.steps, found.places_used, TrackState.RELOCALIZED, checks, t0
             )
+            if cfg.confirm_relocalization:
+                self._unconfirmed = query.id
+            return result
         return self._refused(query, prediction, checks, t0, why, tentative)
 
     def _refused(

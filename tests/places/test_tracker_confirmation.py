@@ -10,6 +10,9 @@ by fixed answers. So the tests check the tracker's rules, not the estimators:
   chain goes on, no new chain, the recognized pose never enters the graph);
 * a **kidnapping** — recognized on the kidnapped query itself — is confirmed by the next query: the recognized
   pose moved by the odometry finds its places, the old prediction finds none: a new chain there, ``RELOCALIZED``;
+* a **start-up by recognition from one scan** is flagged (``tracker.confirmed``) until a later query's places pass
+  the gate against its prediction: the right start is confirmed by the next query, a wrong one (places of one pass
+  that agree with each other, 4 m off) never is, and the kidnap rule re-localizes it;
 * an **ambiguous** recognition — two groups of agreeing places on two poses (the two readings of a
   point-symmetric room, office tour seed 1014, docs/places.md) — starts no chain, whichever group is larger.
 """
@@ -58,8 +61,9 @@ def _run(
     **config,
 ) -> tuple[Tracker, list]:
     """Track queries whose true poses are ``truths`` (odometry: +x by STEP_M each, whatever the truth does) from a
-    known start at ``truths[0]``; ``blind``: queries whose places give nothing wherever the hierarchy is seeded."""
-    tracker = Tracker(building(), TrackerConfig(initial_pose=truths[0], **config))
+    known start at ``truths[0]`` (``initial_pose=None`` in ``config``: a start by recognition); ``blind``: queries
+    whose places give nothing wherever the hierarchy is seeded."""
+    tracker = Tracker(building(), TrackerConfig(**{"initial_pose": truths[0], **config}))
     k = {"now": 0}
 
     def localize(query, place_ids, use_odometry=True):  # noqa: ANN001, ANN202 - the MultiPlaceLocalizer's shape
@@ -156,3 +160,32 @@ def test_two_groups_of_agreeing_places_on_two_poses_start_no_chain(monkeypatch) 
     # without the rule the majority wins: a new chain on the mirrored reading, 5.8 m off
     _, results = _run(monkeypatch, truths, [ambiguous, unique], recognize_after=2, refuse_ambiguous=False)
     assert results[2].state is TrackState.RELOCALIZED and abs(results[2].pose.x - mirror.x) < 0.05
+
+
+def test_a_start_recognized_from_one_scan_is_flagged_until_the_next_query_confirms_it(monkeypatch) -> None:
+    truths = [_room(i) for i in range(3)]
+    tracker, results = _run(monkeypatch, truths, [_recognized(truths[0], ("r1", "r2"))], initial_pose=None)
+    assert results[0].state is TrackState.RELOCALIZED and results[0].flagged
+    assert [c.code for c in results[0].checks if not c.passed] == ["tracker.confirmed"]
+    r = results[1]  # its places pass the gate against the prediction: confirmed, vouched for from here
+    assert r.state is TrackState.TRACKING and not r.flagged
+    assert _checks(r)["tracker.confirmed"].passed is True and _checks(r)["tracker.confirmed"].value >= 1
+    assert "tracker.confirmed" not in _checks(results[2]) and not results[2].flagged
+    # without the rule the first scan is vouched for at once
+    _, results = _run(
+        monkeypatch, truths, [_recognized(truths[0], ("r1", "r2"))], initial_pose=None, confirm_relocalization=False
+    )
+    assert results[0].state is TrackState.RELOCALIZED and not results[0].flagged
+
+
+def test_a_wrong_start_recognized_from_one_scan_is_never_vouched_for(monkeypatch) -> None:
+    # two look-alike places agree on a pose 4 m off: the next queries' places, seeded there, find nothing; every
+    # result is flagged until the kidnap rule's recognition (the right room) starts a chain of its own
+    truths = [_room(i) for i in range(5)]
+    wrong = Pose2(truths[0].x + 4.0, ROOM_Y_M, 0.0)
+    answers = [_recognized(wrong, ("r3", "r4")), _recognized(truths[2], ("r1", "r2"))]
+    tracker, results = _run(monkeypatch, truths, answers, initial_pose=None, recognize_after=2)
+    j = next(j for j in range(1, 5) if results[j].state is TrackState.RELOCALIZED)
+    assert j == 2  # kidnap_after = 2 queries without a consistent factor
+    assert all(r.flagged for r in results[:j]) and all(_checks(r)["tracker.confirmed"].passed is False for r in results[:j])
+    assert abs(results[j].pose.x - truths[j].x) < 0.05 and tracker.recognitions == 2
