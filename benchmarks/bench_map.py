@@ -12,11 +12,17 @@ Usage::
     .venv/bin/python benchmarks/bench_map.py --log intel --track-every 10  # localizing in the map (issue 19.3)
     .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --place-covariance local
     .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --track-set recognize_after=1
+    .venv/bin/python benchmarks/bench_map.py --log aces --track-every 10 --kidnap 40 --place-covariance marginal
 
 ``--track-every K`` holds back every K-th scan, maps the rest, tracks the held-back scans through that map with
 the :class:`~factorloc.places.Tracker` (:mod:`factorloc.evaluation.map_tracking`) and reports the relations metric
 over the relations with a held-back end, the share flagged / lost, the agreement with the map of all scans and the
 share of unflagged results beyond 3σ of the tracker's covariance, and the tracking latency.
+
+``--kidnap N`` (with ``--track-every K``) instead starts a tracker with no pose at ``N`` runs of
+``--kidnap-length`` consecutive held-back scans spread over the log (:func:`~factorloc.evaluation.map_tracking.kidnapped_starts`):
+how often it re-localizes right within 3 scans, vouches for a wrong pose first, never commits, and the share of its
+vouched-for results that are wrong (> 1 m or 10° from the scan's pose in the map of the rest).
 
 ``--set name=value`` overrides a :class:`~factorloc.mapping.MapConfig` field (numbers, booleans, strings); a
 dotted name reaches into a nested config, e.g. ``--set icp.reliability.min_heading_strength=0.001``.
@@ -69,6 +75,9 @@ def _overrides(items: list[str]) -> dict:
     out = {}
     for item in items:
         k, _, v = item.partition("=")
+        if v.lower() in ("true", "false"):  # the shell's spelling of a boolean: never the (truthy) string "false"
+            out[k] = v.lower() == "true"
+            continue
         try:
             out[k] = ast.literal_eval(v)
         except (ValueError, SyntaxError):
@@ -135,6 +144,8 @@ def main() -> None:
     )
     ap.add_argument("--pairwise", action="store_true", help="also run today's pairwise 'ours' on every relation")
     ap.add_argument("--track-every", type=int, default=None, metavar="K", help="hold back every K-th scan and track it")
+    ap.add_argument("--kidnap", type=int, default=None, metavar="N", help="with --track-every: N kidnapped starts")
+    ap.add_argument("--kidnap-length", type=int, default=8, metavar="L", help="scans per kidnapped start (default 8)")
     ap.add_argument(
         "--place-covariance",
         choices=("local", "marginal", "none", "all"),
@@ -155,6 +166,9 @@ def main() -> None:
 
         tracker_config = config_from_overrides(args.track_set, TrackerConfig)
         print(f"tracker settings: {', '.join(args.track_set) or 'defaults'}")
+        if args.kidnap is not None:
+            _kidnap(log, config, tracker_config, args.track_every, args.kidnap, args.kidnap_length, args.json, variants)
+            return
         _track(log, rel, config, tracker_config, args.track_every, name, args.json, variants)
         return
     t0, c0 = time.perf_counter(), time.process_time()
@@ -272,6 +286,38 @@ def _track(
         print(f"recognition events: {events}")
         summary[variant] = {"rows": table, "compare": cmp, "states": track.states(), "latency_ms_median": float(np.median(lat))}
         summary[variant]["recognition_events"] = events
+    if out is not None:
+        out.write_text(json.dumps(summary, indent=1))
+
+
+def _kidnap(
+    log: LaserLog,
+    config: MapConfig,
+    tracker_config: object,
+    every: int,
+    starts: int,
+    length: int,
+    out: Path | None,
+    variants: list[str],
+) -> None:
+    """Kidnapped starts in the map of the rest (see the module docstring)."""
+    from factorloc.evaluation.map_tracking import kidnap_figures, kidnapped_starts
+
+    reduced, summary = None, {}
+    for variant in variants:
+        t0 = time.perf_counter()
+        found = kidnapped_starts(log, every, starts, length, config, tracker_config, place_covariance=variant, map_result=reduced)
+        reduced = found.map
+        fig = kidnap_figures(found.runs)
+        lat = 1000.0 * np.array([r.seconds for run in found.runs for r in run.results])
+        print(
+            f"\n== places with covariance: {variant} ({time.perf_counter() - t0:.1f} s): {int(fig['runs'])} starts of "
+            f"{length} scans (every {every}th held back): right within 3 scans {100 * fig['right_within']:.1f} %, wrong "
+            f"first commitment {100 * fig['wrong_commit']:.1f} %, never committed {100 * fig['never']:.1f} %; vouched-for "
+            f"results wrong {100 * fig['unflagged_wrong_rate']:.2f} %; median scans to a right commitment "
+            f"{fig['median_scans_to_commit']:g}; latency median {np.median(lat):.1f} ms (p95 {np.percentile(lat, 95):.1f})"
+        )
+        summary[variant] = fig
     if out is not None:
         out.write_text(json.dumps(summary, indent=1))
 
