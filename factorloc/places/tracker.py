@@ -703,6 +703,8 @@ class Tracker:
                 )
             checks.append(Check.flag("tracker.relocalized", "re-localized by place recognition", True, note=note))
             if cfg.confirm_relocalization:
+                # one tracker.confirmed per result, about the chain it belongs to: the abandoned chain's is moot
+                checks[:] = [c for c in checks if c.code != "tracker.confirmed"]
                 checks.append(
                     Check.flag(
                         "tracker.confirmed",

@@ -189,3 +189,6 @@ def test_a_wrong_start_recognized_from_one_scan_is_never_vouched_for(monkeypatch
     assert j == 2  # kidnap_after = 2 queries without a consistent factor
     assert all(r.flagged for r in results[:j]) and all(_checks(r)["tracker.confirmed"].passed is False for r in results[:j])
     assert abs(results[j].pose.x - truths[j].x) < 0.05 and tracker.recognitions == 2
+    # one tracker.confirmed on the new chain's first result: about the new chain, not the abandoned one
+    confirmed = [c for c in results[j].checks if c.code == "tracker.confirmed"]
+    assert len(confirmed) == 1 and not confirmed[0].passed and "r1" in confirmed[0].note
