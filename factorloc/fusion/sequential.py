@@ -125,7 +125,7 @@ def gated(estimates: Sequence[Estimate], gating: GatingConfig | None) -> tuple[l
     ests = list(estimates)
     if gating is None or not gating.consistency or len(ests) < 2:
         return ests, []
-    verdicts = consistency_gate(ests, gating.consistency_probability, gating.full_pose_whole)
+    verdicts = consistency_gate(ests, gating.consistency_probability, gating.full_pose_whole, gating.heading_takes_position)
     accepted = [p for p in (v.accepted_estimate() for v in verdicts) if p is not None]
     rejected = [v.estimate for v in verdicts if not v.fully_accepted]
     return accepted, rejected

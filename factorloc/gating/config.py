@@ -26,6 +26,11 @@ class GatingConfig:
         A full-pose estimate that loses its position also loses its heading before the headings are tested
         (x, y and θ are one measurement with one cause of failure: the odometry of a robot carried away and
         turned). False tests the position and heading groups independently (the patent's per-axis view).
+    heading_takes_position
+        The converse, off by default: a full-pose estimate that loses its heading loses its position too, and the
+        positions are tested again without it (:func:`~factorloc.gating.consistency_gate`). For factors that are
+        all solutions of one matcher against several places (place recognition), where a heading turned by 180°
+        is another reading of the building with a position of that reading.
     seed_audit
         Reject a reliable estimate that a later step's data contradict as a seed (:func:`~factorloc.gating.seed_audit`:
         a kidnapped robot's odometry, around which the scan fits nowhere).
@@ -42,6 +47,7 @@ class GatingConfig:
     consistency: bool = True
     consistency_probability: float = 0.999
     full_pose_whole: bool = True
+    heading_takes_position: bool = False
     seed_audit: bool = True
     drop_seeded: bool = True
     undetermined_sigma_m: float = 0.5 * UNCONSTRAINED_SIGMA_M

@@ -21,12 +21,15 @@ from factorloc.stats import chi2_quantile
 from factorloc.types import FULL, HEADING, POSITION, Component, Estimate
 from factorloc.verdicts import Check, Comparison, Unit, render_checks
 
-__all__ = ["GROUPS", "WHOLE_POSE", "Verdict", "consistency_gate", "consistency_code"]
+__all__ = ["GROUPS", "WHOLE_POSE", "WHOLE_POSE_POSITION", "Verdict", "consistency_gate", "consistency_code"]
 
 GROUPS: dict[str, tuple[Component, ...]] = {"position": POSITION, "heading": HEADING}
 
 #: Rule code of a heading dropped with its full pose's position.
 WHOLE_POSE = "gate.consistency.whole_pose"
+
+#: Rule code of a position dropped with its full pose's heading (``heading_takes_position``).
+WHOLE_POSE_POSITION = "gate.consistency.whole_pose_position"
 
 
 def consistency_code(group: str) -> str:
@@ -212,7 +215,12 @@ def _packed(estimates: Sequence[Estimate], members: list[int], is_heading: bool)
     return vals, covs
 
 
-def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999, full_pose_whole: bool = True) -> list[Verdict]:
+def consistency_gate(
+    estimates: Sequence[Estimate],
+    probability: float = 0.999,
+    full_pose_whole: bool = True,
+    heading_takes_position: bool = False,
+) -> list[Verdict]:
     """Reject the parts of reliable estimates that disagree with the others.
 
     For each group (position, heading), every estimate measuring it is tested against the product of the
@@ -226,13 +234,52 @@ def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999, 
     that heading would otherwise vote with it; when no other estimate measures the heading, it keeps it
     (there is nothing to vote against). ``full_pose_whole=False`` tests the two groups independently (the
     patent's per-axis view). The measurement that set this default is in ``docs/calibration/gating.md``.
+
+    ``heading_takes_position`` (off) is the converse for full poses of one kind, such as the ICP solutions of
+    several places: a full pose that loses its heading loses its position too, and the positions are tested
+    again without it (until no such pose is left). A solution turned by 180° (a corridor read the other way)
+    has a position of that reading; when its position is vague along the corridor it passes the position test
+    and, without this, the fused pose would take the position of one reading with the heading of the other.
     """
+    excluded: dict[int, tuple[list[Check], dict[str, float]]] = {}  # turned full poses: their checks and d² then
+    while True:
+        accepted, checks, d2_all = _gate_once(estimates, probability, full_pose_whole, set(excluded))
+        if not heading_takes_position:
+            break
+        turned = [
+            i
+            for i, e in enumerate(estimates)
+            if len(e.values) == 3 and i not in excluded and Component.THETA not in accepted[i] and Component.X in accepted[i]
+        ]
+        if not turned:
+            break
+        excluded.update({i: (checks[i], d2_all[i]) for i in turned})
+    for i, (turned_checks, turned_d2) in sorted(excluded.items()):
+        accepted[i] -= {Component.X, Component.Y, Component.THETA}
+        checks[i], d2_all[i] = list(turned_checks), dict(turned_d2)
+        checks[i].append(
+            Check.flag(
+                WHOLE_POSE_POSITION,
+                "position kept with its heading",
+                False,
+                note="one measurement of the whole pose: its heading disagrees with the other steps'",
+                failure="position dropped with its heading",
+            )
+        )
+    return [Verdict(e, tuple(c for c in FULL if c in accepted[i]), tuple(checks[i]), d2_all[i]) for i, e in enumerate(estimates)]
+
+
+def _gate_once(
+    estimates: Sequence[Estimate], probability: float, full_pose_whole: bool, excluded: set[int]
+) -> tuple[list[set], list[list[Check]], list[dict[str, float]]]:
+    """One pass of :func:`consistency_gate` over the estimates not in ``excluded`` (a full pose whose heading was
+    rejected, left out of both tests): the accepted components, the checks and the d² of each estimate."""
     accepted = [set(e.components) for e in estimates]
     checks: list[list[Check]] = [[] for _ in estimates]
     d2_all: list[dict[str, float]] = [{} for _ in estimates]
     for group, comps in GROUPS.items():  # position first: a full pose that loses it is out of the heading test
         is_heading = comps == HEADING
-        members = _members(estimates, is_heading)
+        members = [i for i in _members(estimates, is_heading) if i not in excluded]
         if is_heading and full_pose_whole:
             dropped = [i for i in members if len(estimates[i].values) == 3 and Component.X not in accepted[i]]
             if len(dropped) == len(members):  # no other step measures the heading: the only one there is stays
@@ -271,4 +318,4 @@ def consistency_gate(estimates: Sequence[Estimate], probability: float = 0.999, 
                     note=f"χ² quantile, {k} dof, p = {probability:g}",
                 )
             )
-    return [Verdict(e, tuple(c for c in FULL if c in accepted[i]), tuple(checks[i]), d2_all[i]) for i, e in enumerate(estimates)]
+    return accepted, checks, d2_all

@@ -106,7 +106,11 @@ def gate(runs: Sequence[StepRun], config: GatingConfig | None = None) -> Gated:
     audited = seed_audit(ran, cfg.drop_seeded) if cfg.seed_audit else {}
     contradicted = {id(ran[i]): check for i, check in audited.items()}
     reliable = [e for e in ran if e.reliable and id(e) not in contradicted]
-    verdicts = consistency_gate(reliable, cfg.consistency_probability, cfg.full_pose_whole) if cfg.consistency else []
+    verdicts = (
+        consistency_gate(reliable, cfg.consistency_probability, cfg.full_pose_whole, cfg.heading_takes_position)
+        if cfg.consistency
+        else []
+    )
     verdict_of = {id(v.estimate): v for v in verdicts}
     reports: list[StepReport] = []
     accepted: list[Estimate] = []

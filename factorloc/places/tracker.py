@@ -162,6 +162,12 @@ class TrackerConfig:
         no evidence between the two readings of a point-symmetric room or an aliased corridor. The tracker stays
         ``LOST`` (or, for the early recognition, ``TRACKING`` flagged) and tries again on the next query. A
         recognized pose that passes the gate against a vouched-for prediction is not refused (the prediction decides).
+    recognition_whole_pose
+        When the recognized places' factors are gated together, a factor whose heading disagrees with the others'
+        loses its position too (:attr:`~factorloc.gating.GatingConfig.heading_takes_position`): a place that read
+        the query the other way along a corridor has a position of that reading, vague along the corridor, which
+        would pass the position test and lend the fused pose its position under the other reading's heading.
+        Dropped whole, such factors are a rival group for ``tracker.unique``.
     confirm_relocalization
         A chain that place recognition started from one scan (at start-up, by the kidnap rule, when lost, after a
         broken odometry) is flagged (``tracker.confirmed`` failed) until a later query's place factors pass the
@@ -214,6 +220,7 @@ class TrackerConfig:
     refuse_ambiguous: bool = True
     confirm_min_places: int = 1
     confirm_relocalization: bool = True
+    recognition_whole_pose: bool = True
     lost_sigma_m: float = 1.5
     initial_pose: Pose2 | None = None
     initial_covariance: np.ndarray | None = None
@@ -804,7 +811,10 @@ class Tracker:
                 factors.extend(run.factors)
         if not factors:
             return None
-        loc = fuse(factors, gating=cfg.localization.gating)
+        gating = cfg.localization.gating
+        if cfg.recognition_whole_pose:
+            gating = replace(gating, heading_takes_position=True)
+        loc = fuse(factors, gating=gating)
         if not loc.determined:
             return None
         used = tuple(dict.fromkeys(p for r in loc.steps if r.status is StepStatus.FUSED and (p := split_step_name(r.name)[1])))

@@ -192,3 +192,37 @@ def test_a_wrong_start_recognized_from_one_scan_is_never_vouched_for(monkeypatch
     # one tracker.confirmed on the new chain's first result: about the new chain, not the abandoned one
     confirmed = [c for c in results[j].checks if c.code == "tracker.confirmed"]
     assert len(confirmed) == 1 and not confirmed[0].passed and "r1" in confirmed[0].note
+
+
+def test_places_reading_a_corridor_both_ways_start_no_chain(monkeypatch) -> None:
+    # recognition on a start-up: two places read the query one way along the corridor, three the other (turned by
+    # 180°, the majority, with the more certain headings); every factor vague along the corridor (σx 10 m), so all
+    # positions agree. With recognition_whole_pose the turned-away pair loses its position with its heading and is
+    # a rival group: tracker.unique refuses the start (the shape of ACES scan 5139, docs/places.md)
+    def factor(place: str, x_m: float, theta_rad: float, sigma_rad: float) -> Estimate:
+        return Estimate(f"icp@{place}", FULL, np.array([x_m, 0.05, theta_rad]), np.diag([10.0**2, 0.1**2, sigma_rad**2]))
+
+    runs = {
+        "c3": factor("c3", 4.5, 0.0, 0.08),
+        "c4": factor("c4", 4.6, 0.0, 0.07),
+        "c10": factor("c10", 15.0, math.pi, 0.016),
+        "c11": factor("c11", 16.0, math.pi - 0.01, 0.02),
+        "c12": factor("c12", 17.0, math.pi + 0.01, 0.02),
+    }
+
+    def start(**config):  # noqa: ANN003, ANN202
+        tracker = Tracker(building(), TrackerConfig(**config))
+        cands = [SimpleNamespace(place_id=p, T_place_query=None, theta_place_query_rad=0.0) for p in runs]
+        monkeypatch.setattr(tracker.recognizer, "candidates", lambda query, k: cands)
+        monkeypatch.setattr(
+            tracker.relocalizer,
+            "run_place",
+            lambda query, pid: SimpleNamespace(localization=SimpleNamespace(determined=True), factors=(runs[pid],)),
+        )
+        return tracker.update(Query(scan=ring_scan(), odometry=Odometry(Pose2(), 0.05, 0.05, 0.01), id="q0"))
+
+    r = start()
+    assert r.state is TrackState.LOST and _checks(r)["tracker.unique"].passed is False
+    # without the rule the pair keeps its positions and the start fuses the majority's heading with all five positions
+    r = start(recognition_whole_pose=False)
+    assert r.state is TrackState.RELOCALIZED and _checks(r)["tracker.unique"].passed is True
