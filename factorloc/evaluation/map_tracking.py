@@ -143,10 +143,16 @@ def track_in_map(
     return MapTrack(held, kept, result, tuple(results), poses, covs, map_seconds)
 
 
+def _kept_before(kept: np.ndarray, i: int) -> int:
+    """The position in ``kept`` of the kept scan just before held-back scan ``i`` (scan 0 is always kept, so there
+    is one)."""
+    return int(np.searchsorted(kept, i)) - 1
+
+
 def _map_pose_of_held(result: MapResult, kept: np.ndarray, log: LaserLog, i: int) -> Pose2:
     """The map's own estimate of held-back scan ``i``: the map's pose of the kept scan just before it composed with
-    the odometry between the two (scan 0 is always kept, so there is one)."""
-    j = int(np.searchsorted(kept, i)) - 1  # position in `kept` of the scan just before i
+    the odometry between the two."""
+    j = _kept_before(kept, i)
     stamps = log.scans.stamps_s
     return Pose2.from_array(result.scan_poses[j]).compose(log.odometry.between(float(stamps[kept[j]]), float(stamps[i])))
 
@@ -159,7 +165,7 @@ def _aligned_pose_of_held(result: MapResult, kept: np.ndarray, log: LaserLog, i:
     from factorloc.registration.icp2d import align
     from factorloc.registration.prepared import prepare_target
 
-    j = int(np.searchsorted(kept, i)) - 1
+    j = _kept_before(kept, i)
     stamps = log.scans.stamps_s
     seed = log.odometry.between(float(stamps[kept[j]]), float(stamps[i]))
     fit = align(prepare_target(np.asarray(log.scans.scans[kept[j]].points_m)), np.asarray(log.scans.scans[i].points_m), seed)

@@ -46,7 +46,7 @@ from factorloc.errors import InputError
 from factorloc.estimators.icp import IcpConfig
 from factorloc.evaluation.relations import Relations
 from factorloc.evaluation.truth import LogTruth
-from factorloc.geometry import Pose2, wrap_angle
+from factorloc.geometry import Pose2, rotate_covariance, wrap_angle
 from factorloc.odometry_model import CHI2_3SIGMA_2DOF
 from factorloc.places import Place, PlaceMap, PlaceRecognizer, PlaceVerifier, RecognitionConfig, VerifiedPlace
 from factorloc.places.recognition import local_submap
@@ -304,10 +304,8 @@ def _top_error(top: VerifiedPlace | None, place_map: PlaceMap, truth: LogTruth, 
     T_est = T_wr.between(Pose2(*est.values))
     d = T_est.translation - T_true.translation
     dth = float(wrap_angle(T_est.theta - T_true.theta))
-    c, s = math.cos(T_wr.theta), math.sin(T_wr.theta)
-    R = np.array([[c, -s], [s, c]])
     # the estimate's covariance in the place's frame, plus the truth's own (both ends, LogTruth.sigma)
-    cov = R.T @ est.covariance[:2, :2] @ R + 2.0 * np.diag(truth.sigma[:2] ** 2)
+    cov = rotate_covariance(est.covariance, -T_wr.theta)[:2, :2] + 2.0 * np.diag(truth.sigma[:2] ** 2)
     var_th = float(est.covariance[2, 2]) + 2.0 * float(truth.sigma[2]) ** 2
     d2 = float(d @ np.linalg.solve(cov, d))
     beyond = d2 > CHI2_3SIGMA_2DOF or abs(dth) > 3.0 * math.sqrt(var_th)

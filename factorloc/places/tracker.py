@@ -79,7 +79,7 @@ from factorloc.places.choose import ChoiceConfig, places_in_view
 from factorloc.places.multi import MultiPlaceLocalizer, PlaceLocalization, split_step_name
 from factorloc.places.placemap import PlaceMap
 from factorloc.places.recognition import PlaceRecognizer, RecognitionConfig
-from factorloc.stats import chi2_quantile
+from factorloc.stats import chi2_quantile, largest_sigma
 from factorloc.types import FULL, Component, Estimate, Localization, Odometry, Query, StepReport, StepStatus
 from factorloc.verdicts import Check, Unit
 
@@ -449,8 +449,8 @@ class Tracker:
             confirmed = self._confirm(query, candidate, delta, Q, checks, t0)
             if confirmed is not None:
                 return confirmed
-        var_pos = max(float(np.linalg.eigvalsh(pred_cov[:2, :2])[-1]), 0.0)
-        sigma_pos = math.sqrt(var_pos)
+        sigma_pos = largest_sigma(pred_cov)
+        var_pos = sigma_pos * sigma_pos
         # a chain recognized from one scan and not confirmed yet vouches for none of its σ: all of it counts
         supported_var = 0.0 if self._unconfirmed is not None else self._supported_var
         sigma_grown = math.sqrt(max(var_pos - supported_var, 0.0))
@@ -505,7 +505,7 @@ class Tracker:
                 graph.add(f)
         pose, cov = self._solve(graph, values, k)
         if accepted:
-            self._supported_var = max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0)
+            self._supported_var = largest_sigma(cov) ** 2
         checks.append(_jump_check(pose, pred, pred_cov))
         used = tuple(dict.fromkeys(p for e in accepted if (p := split_step_name(e.step)[1]) is not None))
         return self._result(query, TrackState.TRACKING, pose, cov, reports, used, checks, pred, t0)
@@ -578,7 +578,7 @@ class Tracker:
         query's places gave ``n_consistent`` ≥ 1 factor(s) passing the gate against the prediction."""
         return Check.at_least(
             "tracker.confirmed",
-            "a pose recognized from one scan is confirmed by a later query's place factors",
+            _CONFIRMED_RULE,
             n_consistent,
             1,
             note=f"recognized at {self._unconfirmed}",
@@ -633,7 +633,7 @@ class Tracker:
         self._candidate = None
         self._unconfirmed = None
         pose, cov = self._solve(graph, values, k)
-        self._supported_var = max(float(np.linalg.eigvalsh(cov[:2, :2])[-1]), 0.0) if used else 0.0
+        self._supported_var = largest_sigma(cov) ** 2 if used else 0.0
         return self._result(query, state, pose, cov, reports, used, checks, None, t0)
 
     def _relocalize(
@@ -715,7 +715,7 @@ class Tracker:
                 checks.append(
                     Check.flag(
                         "tracker.confirmed",
-                        "a pose recognized from one scan is confirmed by a later query's place factors",
+                        _CONFIRMED_RULE,
                         False,
                         note=f"recognized on {list(found.places_used)}",
                         failure="unconfirmed: the next query's places must give a factor consistent with it",
@@ -834,6 +834,10 @@ class Tracker:
     ) -> TrackResult:
         loc = Localization(pose, cov, reports, "tracker", (), self.config.localization, tuple(checks))
         return TrackResult(query.id, state, loc, used, tuple(checks), pred, time.perf_counter() - t0)
+
+
+#: What ``tracker.confirmed`` checks (:attr:`TrackerConfig.confirm_relocalization`).
+_CONFIRMED_RULE = "a pose recognized from one scan is confirmed by a later query's place factors"
 
 
 #: The 3-dof χ² quantile of the 3σ tail probability (the jump check).
