@@ -36,7 +36,10 @@ agreement must not be read as "here".
 
 With ``--pose DIR ...`` it prints the pose-from-bearings table per scenario (the compass with and without its pose,
 the correlation after each, a plain ORB vote baseline, CPU ms per query); ``--set name=value ...`` adds a variant of
-:class:`CompassConfig` beside them, query by query in the same run. ``--same-spot N``: views at the reference spot.
+:class:`CompassConfig` beside them, query by query in the same run (booleans as ``true``/``false``); ``--depth scan``
+leaves each reference's cloud out, so that its planar scan is the only depth (``CompassConfig.planar_depth``).
+``--same-spot N``: views at the reference spot (the simulated apartment with its cloud, its laser scan only, no
+depth; the real panoramas).
 
 Run: ``.venv/bin/python benchmarks/bench_vision.py [--queries N] [--views N] [--sim N] [--scenario DIR]``.
 Prints figures; asserts nothing.
@@ -453,15 +456,33 @@ def _overrides(items: list[str]) -> dict[str, Any]:
     for item in items:
         key, value = item.split("=", 1)
         kind = type(getattr(base, key))
-        kw[key] = kind(float(value)) if kind in (bool, int) else kind(value) if kind is str else float(value)
+        if kind is bool:
+            if value.lower() not in ("0", "1", "false", "true"):
+                raise SystemExit(f"--set {key}: a boolean is 0, 1, false or true, got {value!r}")
+            kw[key] = value.lower() in ("1", "true")
+        else:
+            kw[key] = kind(float(value)) if kind is int else kind(value) if kind is str else float(value)
     return kw
 
 
-def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] | None = None) -> None:
+def _with_depth(reference: Reference, depth: str) -> Reference:
+    """``reference`` with the depth ``depth`` names: ``"cloud"`` as it is (the cloud preferred), ``"scan"`` its planar
+    scan only (the one-row wall outline :func:`factorloc.vision.depth.depth_map` reads for every elevation)."""
+    if depth == "cloud":
+        return reference
+    if reference.scan is None:
+        raise SystemExit(f"--depth scan: reference {reference.name!r} has no scan")
+    return Reference(
+        panorama=reference.panorama, scan=reference.scan, T_world_reference=reference.T_world_reference, name=reference.name
+    )
+
+
+def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] | None = None, depth: str = "cloud") -> None:
     """The compass with pose from bearings vs heading-only, the correlation after each, and a plain ORB vote.
 
     With ``overrides`` (``name=value`` settings of :class:`CompassConfig`) a third variant, the default with them,
-    runs beside the others, query by query in the same run.
+    runs beside the others, query by query in the same run. ``depth="scan"`` leaves each reference's cloud out, so
+    that its planar scan (the laser's outline at its height, furniture included) is the only depth.
     """
     import cv2
 
@@ -486,7 +507,7 @@ def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] |
         for case in data.cases[:max_queries]:
             if case.truth is None or not case.query.images:
                 continue
-            ref = data.reference_of(case)
+            ref = _with_depth(data.reference_of(case), depth)
             dist = math.hypot(case.truth.x - ref.T_world_reference.x, case.truth.y - ref.T_world_reference.y)
             hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
             for name, cfg in variants.items():
@@ -498,7 +519,7 @@ def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] |
             t0 = time.process_time()
             base = prepared[("orb", case.reference_id)].heading(case.query)
             tallies["ORB vote baseline"].add(None, case.truth, time.process_time() - t0, dist, baseline=base)
-        print(f"\n== {directory} ==")
+        print(f"\n== {directory}, reference depth: {depth} ==")
         print(POSE_HEADER)
         for label, t in tallies.items():
             print(t.row(label))
@@ -518,7 +539,16 @@ def bench_same_spot(n_views: int) -> None:
     import cv2
 
     from factorloc import Pose2
-    from factorloc.sim import DepthCamera, PinholeCamera, apartment, photo, render_camera, render_cloud_360, render_panorama
+    from factorloc.sim import (
+        DepthCamera,
+        PinholeCamera,
+        apartment,
+        photo,
+        render_camera,
+        render_cloud_360,
+        render_panorama,
+        render_scan,
+    )
 
     cv2.setNumThreads(1)
     s_p, s_t = 0.2, math.radians(10.0)
@@ -544,6 +574,8 @@ def bench_same_spot(n_views: int) -> None:
         return CameraImage(photometric(cam.image_bgr), cam.hfov_rad)
 
     sources.append(("simulated apartment (cloud)", sim_ref, sim_view))
+    scan = render_scan(world, t_ref, 360, 0.3, rng=np.random.default_rng(2))
+    sources.append(("simulated apartment (scan only)", Reference(panorama=pano, scan=scan, T_world_reference=t_ref), sim_view))
     sources.append(("simulated apartment (no depth)", Reference(panorama=pano, T_world_reference=t_ref), sim_view))
     for name, (w, h) in {"indoor-bedroom.png": (1024, 180), "outdoor-summit.jpg": (2048, 340)}.items():
         path = PANORAMAS / name
@@ -705,6 +737,9 @@ def main() -> None:
     parser.add_argument("--pose", type=Path, nargs="+", default=None, help="pose-from-bearings table on these scenarios")
     parser.add_argument("--same-spot", type=int, default=0, help="same-spot views per source (sim + real panoramas)")
     parser.add_argument("--pose-fit", type=int, default=0, help="the pose rules' fitting set: N simulated views")
+    parser.add_argument(
+        "--depth", choices=("cloud", "scan"), default="cloud", help="--pose: the references' depth (scan: cloud left out)"
+    )
     parser.add_argument("--no-depth", type=Path, nargs="+", default=None, help="heading-only compass without depth on these")
     parser.add_argument(
         "--set",
@@ -720,7 +755,7 @@ def main() -> None:
         if args.no_depth:
             bench_no_depth(args.no_depth, args.scenario_queries, args.set)
         if args.pose:
-            bench_pose(args.pose, args.scenario_queries, args.set)
+            bench_pose(args.pose, args.scenario_queries, args.set, args.depth)
         if args.same_spot:
             bench_same_spot(args.same_spot)
         return

@@ -199,6 +199,10 @@ class CompassConfig:
         A reference range's σ is the larger of ``depth_relative_sigma``·D and half the range spread
         around it in the depth map (depth edges): a dozen bearings on one wall plus two far ones whose
         coarse ranges were wrong made a confidently wrong resection (3.8°, 4.3σ, on the simulated apartment).
+    planar_depth
+        Whether a depth read from a planar scan alone (no cloud: :attr:`~factorloc.vision.depth.DepthMap.planar`,
+        one row standing for every elevation) corrects the parallax and resects the pose. When False such a
+        reference is treated as having no depth (the heading-only path, its parallax bounded by the votes' spread).
     position_shift_support
         With a position hypothesis the pairs are also voted from a 5×5 grid of positions within ±2σ of
         it; unreliable when one of them gives a mode with ≥ this many times the inliers, more than 3σθ2
@@ -292,6 +296,7 @@ class CompassConfig:
     spread_confidence: float = 0.99
     spread_bound_gain: float = 1.0
     depth_relative_sigma: float = 0.1
+    planar_depth: bool = False
     pose_from_bearings: bool = True
     pose_depth_cols: int = 1440
     pose_depth_rows: int = 64
@@ -401,9 +406,11 @@ def prepare(reference: Reference, config: CompassConfig = CompassConfig()) -> Pr
     az = np.asarray(grid.azimuth_of_column(xy[:, 0]), dtype=np.float64) if len(xy) else np.zeros(0)
     el = np.asarray(grid.elevation_of_row(xy[:, 1]), dtype=np.float64) if len(xy) else np.zeros(0)
     depth = depth_map(reference, grid, config.camera_height_m) if config.parallax_correction else None
+    if depth is not None and depth.planar and not config.planar_depth:
+        depth = None
     pose = reference.T_world_reference
     pose_depth = depth
-    if config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
+    if depth is not None and config.pose_from_bearings and (config.pose_depth_rows, config.pose_depth_cols) != (32, 360):
         pose_depth = depth_map(reference, grid, config.camera_height_m, (config.pose_depth_rows, config.pose_depth_cols))
     depth_points = _lookup(depth, az, el)
     return PreparedCompass(

@@ -42,6 +42,16 @@ class DepthMap:
     camera_height_m: float
     spread_m: np.ndarray | None = None
 
+    @property
+    def planar(self) -> bool:
+        """Whether the ranges come from a planar scan: one row, read for every elevation.
+
+        Right for walls (vertical, at every height where the scan cut them); wrong above and below
+        what the scan plane cut (a wall above a low cabinet reads the cabinet's range, a shelf above
+        the plane reads the wall's).
+        """
+        return self.range_m.shape[0] == 1
+
     def _cell(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         rows, cols = self.range_m.shape
         az = np.asarray(azimuth_rad, dtype=np.float64)

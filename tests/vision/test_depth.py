@@ -88,3 +88,26 @@ def test_bad_input_is_refused_by_name() -> None:
         spread_parallax_bound(np.append(phi[:-1], math.inf), np.zeros(10), n_effective=10, confidence=0.99)
     with pytest.raises(InputError, match="confidence"):
         spread_parallax_bound(phi, np.zeros(10), n_effective=10, confidence=1.0)
+
+
+def test_a_scan_gives_a_planar_depth_map_and_a_cloud_does_not() -> None:
+    """``DepthMap.planar``: a reference with only a planar scan gives one row of ranges read for every elevation (the
+    compass then uses its ``planar_*`` range errors); with a cloud the rows resolve elevation. A square room 2 m
+    from the reference on every side: the scan's range straight ahead is 2 m at any elevation."""
+    from factorloc import Pose2, Reference, Scan
+    from factorloc.vision.depth import depth_map
+    from factorloc.vision.strips import Grid
+
+    t = np.linspace(-2.0, 2.0, 200)
+    walls = np.concatenate([np.column_stack([np.full_like(t, s), t]) for s in (-2.0, 2.0)])
+    walls = np.concatenate([walls, walls[:, ::-1]])
+    grid = Grid(width_px=720, height_px=120, fov_v_rad=math.radians(60.0), azimuth_col0_rad=math.pi)
+    planar = depth_map(Reference(scan=Scan(walls), T_world_reference=Pose2(0.0, 0.0, 0.0)), grid, 1.2)
+    assert planar is not None and planar.planar and planar.range_m.shape[0] == 1
+    assert planar.range_at(np.array([0.0, 0.0]), np.array([-0.3, 0.3])) == pytest.approx([2.0, 2.0], abs=0.03)
+    z = np.linspace(0.0, 2.4, 13)
+    cloud = np.concatenate([np.column_stack([walls, np.full(len(walls), h)]) for h in z])
+    from factorloc import PointCloud
+
+    full = depth_map(Reference(cloud=PointCloud(cloud), T_world_reference=Pose2(0.0, 0.0, 0.0)), grid, 1.2)
+    assert full is not None and not full.planar
