@@ -41,16 +41,10 @@ class DepthMap:
     T_world_reference: Pose2
     camera_height_m: float
     spread_m: np.ndarray | None = None
-
-    @property
-    def planar(self) -> bool:
-        """Whether the ranges come from a planar scan: one row, read for every elevation.
-
-        Right for walls (vertical, at every height where the scan cut them); wrong above and below
-        what the scan plane cut (a wall above a low cabinet reads the cabinet's range, a shelf above
-        the plane reads the wall's).
-        """
-        return self.range_m.shape[0] == 1
+    #: Whether the ranges come from a planar scan (one row, read for every elevation) rather than a cloud.
+    #: Right for walls (vertical, at every height where the scan cut them); wrong above and below what the
+    #: scan plane cut (a wall above a low cabinet reads the cabinet's range, a shelf above the plane the wall's).
+    planar: bool = False
 
     def _cell(self, azimuth_rad: np.ndarray, elevation_rad: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         rows, cols = self.range_m.shape
@@ -146,12 +140,14 @@ def depth_map(reference: Reference, grid: Grid, camera_height_m: float, shape: t
         el = np.arctan2(p[:, 2] - camera_height_m, np.maximum(rng, 1e-6))
         v = 0.5 * grid.height_px - grid.focal_v_px * np.tan(np.clip(el, -1.5, 1.5))
         r_idx = np.floor(v * rows / grid.height_px).astype(int)
+        planar = False
     elif reference.scan is not None and len(reference.scan) >= 10:
         p = reference.scan.points_m
         rng = np.hypot(p[:, 0], p[:, 1])
         az = np.arctan2(p[:, 1], p[:, 0])
         rows = 1
         r_idx = np.zeros(len(p), dtype=int)
+        planar = True
     else:
         return None
     u = np.mod((grid.azimuth_col0_rad - az) / grid.rad_per_px, grid.width_px)
@@ -174,7 +170,7 @@ def depth_map(reference: Reference, grid: Grid, camera_height_m: float, shape: t
     spread = ndimage.maximum_filter(wrapped, size=3, mode="nearest") - ndimage.minimum_filter(wrapped, size=3, mode="nearest")
     spread = np.ascontiguousarray(spread[:, 1:-1])
     spread.setflags(write=False)
-    return DepthMap(filled, grid, reference.T_world_reference, float(camera_height_m), spread)
+    return DepthMap(filled, grid, reference.T_world_reference, float(camera_height_m), spread, planar=planar)
 
 
 def position_seed(hypotheses) -> tuple[tuple[float, float], float] | None:  # noqa: ANN001 - Hypotheses

@@ -111,3 +111,5 @@ def test_a_scan_gives_a_planar_depth_map_and_a_cloud_does_not() -> None:
 
     full = depth_map(Reference(cloud=PointCloud(cloud), T_world_reference=Pose2(0.0, 0.0, 0.0)), grid, 1.2)
     assert full is not None and not full.planar
+    one_row = depth_map(Reference(cloud=PointCloud(cloud), T_world_reference=Pose2(0.0, 0.0, 0.0)), grid, 1.2, (1, 360))
+    assert one_row is not None and not one_row.planar  # a cloud on a one-row grid is still a cloud
