@@ -507,7 +507,9 @@ def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] |
         for case in data.cases[:max_queries]:
             if case.truth is None or not case.query.images:
                 continue
-            ref = _with_depth(data.reference_of(case), depth)
+            if ("depth", case.reference_id) not in prepared:
+                prepared[("depth", case.reference_id)] = _with_depth(data.reference_of(case), depth)
+            ref = prepared[("depth", case.reference_id)]
             dist = math.hypot(case.truth.x - ref.T_world_reference.x, case.truth.y - ref.T_world_reference.y)
             hyp = Hypotheses().plus(odo.estimate(None, case.query, Hypotheses()))
             for name, cfg in variants.items():

@@ -467,23 +467,21 @@ def test_the_dominant_group_does_not_depend_on_where_the_cell_boundaries_fall() 
         np.testing.assert_allclose(extra, extra0, rtol=1e-6)
 
 
-def test_a_planar_scan_alone_does_not_lend_the_compass_its_depth_by_default() -> None:
+def test_a_planar_scan_alone_does_not_lend_the_compass_its_depth_by_default(sim_reference) -> None:
     """A reference with a panorama and a planar scan but no cloud: the scan's one row of ranges would be read for
     every elevation, wrong above and below what the laser cut (a wall above a low cabinet gets the cabinet's
     range). Read so (``planar_depth=True``) it made resected poses 15–33 cm and headings 2–18° off at σ 0.4–3.9°
     (3.0–4.0 % of the simulated scenarios' queries, ``bench_vision.py --pose ... --depth scan``); by default such
     a reference has no depth, and views from other spots are never confidently wrong."""
-    from factorloc.sim import apartment, render_panorama, render_scan
+    from factorloc.sim import render_scan
 
-    world = apartment()
-    pano = render_panorama(world, SIM_REF, width_px=2048)
+    world, with_cloud, _ = sim_reference
     scan = render_scan(world, SIM_REF, 360, 0.3, rng=np.random.default_rng(2))
-    ref = Reference(panorama=pano, scan=scan, T_world_reference=SIM_REF)
-    planar = compass.CompassConfig(planar_depth=True)
-    assert compass.prepare(ref).depth is None and compass.prepare(ref, planar).depth.planar
-    wrong = {True: 0, False: 0}
-    configs = {True: planar, False: compass.CompassConfig()}
+    ref = Reference(panorama=with_cloud.panorama, scan=scan, T_world_reference=SIM_REF)
+    configs = {True: compass.CompassConfig(planar_depth=True), False: compass.CompassConfig()}
     prepared = {flag: compass.prepare(ref, cfg) for flag, cfg in configs.items()}
+    assert prepared[False].depth is None and prepared[True].depth.planar
+    wrong = {True: 0, False: 0}
     for theta, query, hyp in sim_queries(world, 40, (0.2, 1.0), 0.2, "clean", seed=30):
         for flag, cfg in configs.items():
             est = compass.estimate(ref, query, hyp, cfg, prepared=prepared[flag])
