@@ -158,15 +158,44 @@ def _lattice_cells(
     field: LikelihoodField, query_m: np.ndarray, thetas: np.ndarray, t_lo: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """(A, N) field cells of the rotated query points at translation offset (0, 0): ``floor((R_θ q + t_lo − origin)/res)``."""
-    res = field.resolution_m
+    thetas = np.asarray(thetas, dtype=np.float64)
     c, s = np.cos(thetas), np.sin(thetas)
-    # rotated query points: (A, N)
-    rx = c[:, None] * query_m[None, :, 0] - s[:, None] * query_m[None, :, 1]
-    ry = s[:, None] * query_m[None, :, 0] + c[:, None] * query_m[None, :, 1]
     t_lo = np.asarray(t_lo, dtype=np.float64)
-    tx, ty = (t_lo[0], t_lo[1]) if t_lo.ndim == 1 else (t_lo[:, :1], t_lo[:, 1:])
-    bx = np.floor((rx + tx - field.origin_m[0]) / res + 1e-9).astype(np.int64)
-    by = np.floor((ry + ty - field.origin_m[1]) / res + 1e-9).astype(np.int64)
+    if t_lo.ndim == 1:
+        tx, ty = np.full(len(thetas), t_lo[0]), np.full(len(thetas), t_lo[1])
+    else:
+        tx, ty = np.ascontiguousarray(t_lo[:, 0]), np.ascontiguousarray(t_lo[:, 1])
+    q = np.asarray(query_m, dtype=np.float64)
+    return _cells(
+        np.ascontiguousarray(q[:, 0]),
+        np.ascontiguousarray(q[:, 1]),
+        c,
+        s,
+        tx,
+        ty,
+        float(field.origin_m[0]),
+        float(field.origin_m[1]),
+        float(field.resolution_m),
+    )
+
+
+@njit(cache=True)
+def _cells(  # noqa: PLR0913
+    qx: np.ndarray, qy: np.ndarray, c: np.ndarray, s: np.ndarray, tx: np.ndarray, ty: np.ndarray, ox: float, oy: float, res: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel of :func:`_lattice_cells`: the same float64 operations in the same order as the numpy expression
+    ``floor(((c·qx − s·qy) + tx − ox)/res + 1e-9)`` (and its y twin) it replaced, one (heading, point) at a time,
+    without its (A, N) temporaries (no fused multiply-add: numba contracts none without ``fastmath``)."""
+    n_a, n = len(c), len(qx)
+    bx = np.empty((n_a, n), dtype=np.int64)
+    by = np.empty((n_a, n), dtype=np.int64)
+    for a in range(n_a):
+        ca, sa, txa, tya = c[a], s[a], tx[a], ty[a]
+        for k in range(n):
+            rx = ca * qx[k] - sa * qy[k]
+            ry = sa * qx[k] + ca * qy[k]
+            bx[a, k] = np.int64(math.floor((rx + txa - ox) / res + 1e-9))
+            by[a, k] = np.int64(math.floor((ry + tya - oy) / res + 1e-9))
     return bx, by
 
 
@@ -312,6 +341,83 @@ def _suppress(  # noqa: PLR0913
     return kept[:n_kept]
 
 
+@njit(cache=True)
+def _window_index(n: int, size: int, wrap: bool) -> np.ndarray:
+    """(n, size) source index of each window cell along an axis of length n: offsets ``−(size // 2)`` …
+    ``size − 1 − size // 2`` as ``scipy.ndimage.maximum_filter`` places them, beyond the ends the edge cell
+    repeated (scipy's ``"nearest"``) or the axis wrapped (``"wrap"``)."""
+    lo = -(size // 2)
+    idx = np.empty((n, size), dtype=np.int64)
+    for p in range(n):
+        for o in range(size):
+            m = p + lo + o
+            if wrap:
+                m %= n
+            else:
+                m = min(max(m, 0), n - 1)
+            idx[p, o] = m
+    return idx
+
+
+@njit(cache=True)
+def _max_along_rows(src: np.ndarray, size: int, out: np.ndarray) -> None:
+    """``out[r, k]`` = the maximum of row ``r`` of the 2-D ``src`` over the window of :func:`_window_index` at
+    ``k`` (not wrapped): each row padded with its edge cells, then ``size`` shifted maxima of the padded row."""
+    n = src.shape[1]
+    lo = -(size // 2)
+    padded = np.empty(n + size - 1, dtype=src.dtype)
+    for r in range(src.shape[0]):
+        row, dst = src[r], out[r]
+        for m in range(n + size - 1):
+            padded[m] = row[min(max(m + lo, 0), n - 1)]
+        for k in range(n):
+            dst[k] = padded[k]
+        for o in range(1, size):
+            for k in range(n):
+                dst[k] = max(dst[k], padded[k + o])
+
+
+@njit(cache=True)
+def _max_of_rows(src: np.ndarray, index: np.ndarray, out: np.ndarray) -> None:
+    """``out[r]`` = the elementwise maximum of the rows ``src[index[r, o]]`` of the 2-D ``src``, over ``o``."""
+    for r in range(out.shape[0]):
+        dst = out[r]
+        first = src[index[r, 0]]
+        for k in range(dst.size):
+            dst[k] = first[k]
+        for o in range(1, index.shape[1]):
+            row = src[index[r, o]]
+            for k in range(dst.size):
+                dst[k] = max(dst[k], row[k])
+
+
+@njit(cache=True)
+def _peaks(scores: np.ndarray, size_heading: int, size_cells: int, wrap: bool) -> np.ndarray:
+    """Flat indices (ascending) of the positive local maxima of a (heading, x, y) score volume: the cells that
+    equal the maximum of their ``size_heading × size_cells × size_cells`` window (placed, the heading axis wrapped
+    when ``wrap`` and the cell axes clamped at the edges, as :func:`_window_index` says). The same cells as
+    ``scores >= maximum_filter(scores, size, mode=(wrap|nearest, nearest, nearest)) & (scores > 0)``
+    (comparisons only: no rounding to differ), by a running maximum along each axis in turn, every inner loop
+    over contiguous cells."""
+    n_a, n_x, n_y = scores.shape
+    along_y = np.empty_like(scores)
+    _max_along_rows(scores.reshape(n_a * n_x, n_y), size_cells, along_y.reshape(n_a * n_x, n_y))
+    along_x = np.empty_like(scores)
+    index_x = _window_index(n_x, size_cells, False)
+    for i in range(n_a):
+        _max_of_rows(along_y[i], index_x, along_x[i])
+    window = along_y.reshape(n_a, n_x * n_y)  # reused
+    _max_of_rows(along_x.reshape(n_a, n_x * n_y), _window_index(n_a, size_heading, wrap), window)
+    flat_s, flat_m = scores.ravel(), window.ravel()
+    found = np.empty(flat_s.size, dtype=np.int64)
+    n = 0
+    for k in range(flat_s.size):
+        if flat_s[k] >= flat_m[k] and flat_s[k] > 0.0:
+            found[n] = k
+            n += 1
+    return found[:n]
+
+
 def _angle_grid(center: float, half_width: float, step: float) -> np.ndarray:
     if half_width >= math.pi:
         n = int(math.ceil(2.0 * math.pi / step))
@@ -373,10 +479,7 @@ def search(
     sep_a = max(1, int(p.separation_rad // p.coarse_angle_step_rad))
     sep_t = max(1, int(p.separation_m // r1))
     size = (min(2 * sep_a + 1, len(thetas)), 2 * sep_t + 1, 2 * sep_t + 1)
-    wrap = heading_half_width_rad >= math.pi
-    peak = scores >= ndimage.maximum_filter(scores, size=size, mode=("wrap" if wrap else "nearest", "nearest", "nearest"))
-    peak &= scores > 0.0
-    idx = np.flatnonzero(peak)
+    idx = _peaks(scores, size[0], size[1], heading_half_width_rad >= math.pi)
     idx = idx[np.argsort(scores.ravel()[idx], kind="stable")[::-1]]
     a1, kx1, ky1 = np.unravel_index(idx, scores.shape)
     keep = _suppress(a1, kx1, ky1, thetas, r1, p.separation_m, p.separation_rad, p.n_coarse)
@@ -409,13 +512,14 @@ def search(
         flat3 = sc3.argmax(axis=1)
         a3, k3 = np.unravel_index(flat3, (len(offs3), 9))
         kx3, ky3 = np.unravel_index(k3, (3, 3))
-        for i in range(m):
+        best = sc3[np.arange(m), flat3]
+        # best first, ties in survivor order (a stable sort), and Pose2s only for the ones returned
+        for i in np.argsort(-best, kind="stable")[: p.n_candidates]:
             pose = Pose2(
                 float(best_lo[i, 0] - r2 + kx3[i] * r2), float(best_lo[i, 1] - r2 + ky3[i] * r2), float(best_th[i] + offs3[a3[i]])
             )
-            out.append(Candidate(pose, float(sc3[i, flat3[i]])))
-    out.sort(key=lambda cand: -cand.score)
-    return out[: p.n_candidates]
+            out.append(Candidate(pose, float(best[i])))
+    return out
 
 
 def reference_fields(

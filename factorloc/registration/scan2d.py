@@ -98,10 +98,20 @@ def voxel_downsample_2d(points_m: np.ndarray, voxel_m: float) -> np.ndarray:
     if voxel_m <= 0.0 or len(pts) == 0:
         return pts.copy()
     cells = np.floor(pts / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    sums = np.zeros((len(counts), 2))
-    np.add.at(sums, inverse, pts)
+    lo = cells.min(axis=0)
+    span = cells.max(axis=0) - lo + 1
+    if float(span[0]) * float(span[1]) < 2.0**62:
+        # one int64 key per cell, in the (x, y) lexicographic order of the rows' unique: the same cells in the same
+        # order, sorted in 1-D; bincount sums each cell's points in input order, as add.at does (the same bits)
+        key = (cells[:, 0] - lo[0]) * span[1] + (cells[:, 1] - lo[1])
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        n = len(counts)
+        sums = np.column_stack([np.bincount(inverse, pts[:, 0], n), np.bincount(inverse, pts[:, 1], n)])
+    else:  # cells too far apart for one key
+        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+        inverse = inverse.ravel()
+        sums = np.zeros((len(counts), 2))
+        np.add.at(sums, inverse, pts)
     return sums / counts[:, None]
 
 

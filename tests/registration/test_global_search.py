@@ -72,3 +72,46 @@ def test_suppression_keeps_maxima_exactly_one_separation_apart_whatever_the_roun
     assert kept.tolist() == [0, 1]
     assert _suppress(a, kx, ky, thetas, 0.3, 0.6, np.radians(10.0), 1).tolist() == [0]
     assert _suppress(a, kx, ky, thetas, 0.3, 0.6, np.radians(8.0), 10).tolist() == [0, 1, 4]
+
+
+def test_the_compiled_peak_test_finds_the_cells_scipys_maximum_filter_finds() -> None:
+    """search's local maxima (``_peaks``) are the cells of ``scores >= maximum_filter(scores) & scores > 0``, with
+    ties (equal neighbours), odd and even windows, windows wider than the volume, the heading axis wrapped or
+    clamped."""
+    from scipy import ndimage
+
+    from factorloc.registration.global_search import _peaks
+
+    rng = np.random.default_rng(0)
+    for t in range(200):
+        n_a, n_c = int(rng.integers(1, 12)), int(rng.integers(1, 9))
+        if t % 2:
+            scores = (rng.random((n_a, n_c, n_c)) - 0.2).astype(np.float32)
+        else:
+            scores = (rng.integers(0, 4, (n_a, n_c, n_c)) / 3).astype(np.float32)  # many ties
+        size_a, size_c, wrap = int(rng.integers(1, n_a + 1)), int(rng.integers(1, 6)), bool(t % 3)
+        mode = ("wrap" if wrap else "nearest", "nearest", "nearest")
+        window_max = ndimage.maximum_filter(scores, size=(size_a, size_c, size_c), mode=mode)
+        expected = np.flatnonzero((scores >= window_max) & (scores > 0))
+        assert np.array_equal(_peaks(scores, size_a, size_c, wrap), expected)
+
+
+def test_the_compiled_lattice_cells_equal_the_numpy_expression_bitwise() -> None:
+    """``_lattice_cells``'s kernel computes ``floor(((c·qx − s·qy) + tx − ox)/res + 1e-9)`` (and its y twin) with the
+    same float64 operations as the numpy expression it replaced: the same cells, for one corner or one per heading."""
+    from factorloc.registration.global_search import LikelihoodField, _lattice_cells
+
+    rng = np.random.default_rng(3)
+    for t in range(100):
+        n_a, n = int(rng.integers(1, 150)), int(rng.integers(3, 200))
+        field = LikelihoodField(np.zeros((3, 3), np.float32), rng.normal(0.0, 10.0, 2), float(rng.choice([0.05, 0.3])))
+        query, thetas = rng.normal(0.0, 8.0, (n, 2)), rng.uniform(-4.0, 4.0, n_a)
+        corner = rng.normal(0.0, 5.0, 2) if t % 2 else rng.normal(0.0, 5.0, (n_a, 2))
+        c, s = np.cos(thetas), np.sin(thetas)
+        rx = c[:, None] * query[None, :, 0] - s[:, None] * query[None, :, 1]
+        ry = s[:, None] * query[None, :, 0] + c[:, None] * query[None, :, 1]
+        tx, ty = (corner[0], corner[1]) if corner.ndim == 1 else (corner[:, :1], corner[:, 1:])
+        bx = np.floor((rx + tx - field.origin_m[0]) / field.resolution_m + 1e-9).astype(np.int64)
+        by = np.floor((ry + ty - field.origin_m[1]) / field.resolution_m + 1e-9).astype(np.int64)
+        got = _lattice_cells(field, query, thetas, corner)
+        assert np.array_equal(got[0], bx) and np.array_equal(got[1], by)

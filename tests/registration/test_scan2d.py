@@ -51,6 +51,24 @@ def test_voxel_downsample_replaces_each_cell_by_its_centroid() -> None:
     np.testing.assert_allclose(sorted(out[:, 0]), [0.02, 0.51])
 
 
+def test_voxel_downsample_gives_the_bits_of_the_row_unique_and_add_at_form() -> None:
+    """The grid's 1-D cell keys and bincount sums give the cells, their order and their centroids of the form they
+    replaced (``np.unique(cells, axis=0)`` and ``np.add.at``), also for cells too far apart for one key."""
+    rng = np.random.default_rng(1)
+    for t in range(200):
+        pts = rng.normal(0.0, rng.uniform(0.1, 20.0), (int(rng.integers(1, 300)), 2))
+        if t % 5 == 0:
+            pts = np.round(pts, 1)  # points on cell borders, several per cell
+        if t % 7 == 0:
+            pts[0] = [1e17, -1e17]  # the fallback: no single int64 key spans these cells
+        voxel = float(rng.choice([0.025, 0.15, 1.0]))
+        cells = np.floor(pts / voxel).astype(np.int64)
+        _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+        sums = np.zeros((len(counts), 2))
+        np.add.at(sums, inverse.ravel(), pts)
+        assert np.array_equal(voxel_downsample_2d(pts, voxel), sums / counts[:, None])
+
+
 def test_normals_of_a_line_are_perpendicular_and_face_the_sensor() -> None:
     y = np.linspace(-1, 1, 101)
     pts = np.column_stack([np.full_like(y, 3.0), y])
