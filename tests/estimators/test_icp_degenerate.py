@@ -5,6 +5,7 @@ to the other steps, a round scan leaves the heading to them, and present-but-unu
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -82,6 +83,27 @@ def test_points_the_alignment_does_not_match_leave_the_heading_strength_alone():
     assert alone > 0.2 and with_far == pytest.approx(alone, rel=0.02)
     loc = fl.localize(fl.Reference(scan=fl.Scan(room)), fl.Query(scan=fl.Scan(np.concatenate([room, far])), odometry=ODOMETRY))
     assert _icp(loc).estimate.kind == "full" and _icp(loc).status is fl.StepStatus.FUSED
+
+
+def test_the_heading_strength_is_the_schur_complement_of_the_heading_over_the_lever():
+    # the closed-form 2×2 inverse against numpy's solve (whose LAPACK kernel, and so its rounding, depends on the
+    # CPU): the same number to rounding, on real alignments (a room, a wall) and on random positive semi-definite
+    # Hessians of every conditioning
+    rng = np.random.default_rng(5)
+    results = []
+    for pts in (_room(rng), _wall(rng), _circle(rng)):
+        results.append(align(prepare_target(pts), pts, fl.Pose2(0.02, -0.01, 0.01)))
+    for _ in range(200):
+        J = rng.normal(size=(50, 3)) * 10.0 ** rng.uniform(-3, 2, size=3)
+        lever = float(rng.uniform(0.1, 10.0) * (J[:, 2] ** 2).sum())
+        results.append(replace(results[0], hessian=J.T @ J, heading_lever_m2=lever))
+    for r in results:
+        h = np.asarray(r.hessian)
+        hpp = h[:2, :2] + 1e-9 * max(h[0, 0] + h[1, 1], 1e-300) * np.eye(2)
+        schur = h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2])
+        expected = min(max(schur / r.heading_lever_m2, 0.0), 1.0)
+        assert heading_strength(r) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    assert heading_strength(results[2]) < 0.01 < 0.2 < heading_strength(results[0])  # a circle, a room
 
 
 @pytest.mark.parametrize(

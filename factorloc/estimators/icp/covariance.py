@@ -180,12 +180,17 @@ def heading_strength(result: IcpResult) -> float:
     lever = float(result.heading_lever_m2) if len(w) >= 3 else 0.0
     if not lever > 0.0:
         return 0.0
-    h = np.asarray(result.hessian, dtype=np.float64)
-    h00, h01, _, h10, h11 = h.ravel().tolist()[:5]
+    h00, h01, h02, h10, h11, h12, h20, h21, h22 = np.asarray(result.hessian, dtype=np.float64).ravel().tolist()
     reg = 1e-9 * max(h00 + h11, 1e-300)
-    # h[:2, :2] + reg·I, entry by entry (the zeros of reg·I added too: the same bits as the numpy form)
-    hpp = np.array([[h00 + reg, h01 + 0.0], [h10 + 0.0, h11 + reg]])
-    schur = float(h[2, 2] - h[2, :2] @ np.linalg.solve(hpp, h[:2, 2]))
+    # H_θp (H_pp + reg·I)⁻¹ H_pθ by the 2×2 inverse in plain floats: the same operations on every CPU (LAPACK's
+    # solve picks its kernels, and with them its rounding, by the instruction set) and without numpy's call costs
+    a, b, c, d = h00 + reg, h01, h10, h11 + reg
+    det = a * d - b * c
+    if not det > 0.0:  # the regularized position block of a PSD Hessian is positive definite; rounding aside
+        return 0.0
+    x0 = (d * h02 - b * h12) / det
+    x1 = (a * h12 - c * h02) / det
+    schur = h22 - (h20 * x0 + h21 * x1)
     value = min(max(schur / lever, 0.0), 1.0)
     return 0.0 if value < ROUNDING_TOLERANCE else value
 
