@@ -76,10 +76,10 @@ from typing import Any
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses
+from factorloc.estimators.base import Hypotheses, sigma_checks
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
-from factorloc.verdicts import SeedEvidence
+from factorloc.verdicts import Check, Comparison, SeedEvidence, Unit, render_checks
 from factorloc.vision import keypoints as kp
 from factorloc.vision.depth import (
     DepthMap,
@@ -516,9 +516,19 @@ def _seed(hypotheses: Hypotheses, theta_reference_rad: float) -> tuple[float, fl
     return float(wrap_angle(theta - theta_reference_rad)), sigma, step
 
 
-def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None, reason: str, **diag: Any) -> Estimate:
+def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None, check: Check, **diag: Any) -> Estimate:
+    """No heading measured: the failed ``check`` that stopped the step, at the seed's heading (or the reference's) with
+    σ = π."""
     theta = seed[0] if seed is not None else 0.0
-    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag)
+    return Estimate.heading(
+        STEP,
+        prepared.theta_reference_rad + theta,
+        math.pi,
+        reliable=False,
+        reason=render_checks((check,)),
+        diagnostics=diag,
+        checks=(check,),
+    )
 
 
 def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:
@@ -545,10 +555,14 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
             window = None
     base = {"window_rad": window, "detector": config.detector}
     if prepared.problem:
-        return _unreliable(prepared, seed, f"reference: {prepared.problem}", **base)
+        check = Check.flag("compass.reference", "a usable reference panorama", False, failure=f"reference: {prepared.problem}")
+        return _unreliable(prepared, seed, check, **base)
     strips, dropped = query_strips(query, prepared.grid)
     if not strips:
-        return _unreliable(prepared, seed, "no usable query view: " + "; ".join(dropped), **base)
+        check = Check.flag(
+            "compass.query_views", "a usable query view", False, failure="no usable query view: " + "; ".join(dropped)
+        )
+        return _unreliable(prepared, seed, check, **base)
     det = kp.make_detector(
         config.detector,
         config.n_features_query,
@@ -574,7 +588,8 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         desc_list.append(desc)
     n_query = int(sum(len(a) for a in az_q_list))
     if n_query < config.min_inliers:
-        return _unreliable(prepared, seed, f"only {n_query} query keypoints", query_keypoints=n_query, **base)
+        check = Check.at_least("compass.query_keypoints", "query keypoints", n_query, config.min_inliers, Unit.COUNT)
+        return _unreliable(prepared, seed, check, query_keypoints=n_query, **base)
     az_q = np.concatenate(az_q_list)
     desc_q = np.concatenate(desc_list)
     az_r, desc_r = prepared.azimuth_rad, prepared.descriptors
@@ -614,7 +629,8 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         qi, ri = qi[inside], ri[inside]
     diag = dict(base, query_keypoints=n_query, candidates=candidates, matches=int(len(qi)), dropped_views=dropped)
     if len(qi) < 2:
-        return _unreliable(prepared, seed, f"only {len(qi)} matches (need ≥ 2 pairs)", inliers=0, **diag)
+        check = Check.at_least("compass.matches", "matched pairs", len(qi), 2, Unit.COUNT)
+        return _unreliable(prepared, seed, check, inliers=0, **diag)
     if config.record_pairs:
         k = ref_index[ri]
         diag["pairs_rad"] = np.column_stack([prepared.azimuth_rad[k], prepared.elevation_rad[k], az_q[qi]]).tolist()
@@ -731,37 +747,103 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         mode_seed_gap_rad=None if window is None else abs(float(wrap_angle(mode - seed[0]))),
         theta_relative_rad=theta,
     )
-    problems = []
-    if n_in < config.min_inliers:
-        problems.append(f"{n_in} inlier pairs < {config.min_inliers}")
-    if n_in / len(qi) < config.min_inlier_ratio:
-        problems.append(f"inlier ratio {n_in / len(qi):.2f} < {config.min_inlier_ratio:.2f}")
-    if ambiguity >= config.max_ambiguity:
-        problems.append(f"ambiguous: a second vote mode has {runner_up} pairs vs {n_in}")
-    if outside >= config.max_outside_ambiguity * max(n_in, 1) and abs(outside_offset) > 3.0 * config.inlier_band_rad:
-        # the best matches just beyond the seeded window agree on another heading more than those inside do:
-        # the seed is wrong (kidnapping) or the window holds a look-alike of a repeated texture
-        problems.append(
-            f"a stronger vote mode ({outside} pairs vs {n_in}) {math.degrees(outside_offset):+.1f}° away, "
-            "beyond the seeded window"
-        )
-    if shifted is not None and shifted[1] >= config.position_shift_support * n_in:
-        shift_gap = abs(float(wrap_angle(shifted[0] - theta)))
-        if shift_gap > 3.0 * sigma:
-            problems.append(
-                f"from a position {shifted[2]:.2f} m off the hypothesis {shifted[1]} pairs vote "
-                f"{math.degrees(shift_gap):.1f}° away"
-            )
+    gap_seed = None
     h = hypotheses.heading()
     if h is not None:
-        gap = abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0])))
-        if gap > config.seed_consistency_n_sigma * math.hypot(sigma, h[1]):
-            problems.append(f"{math.degrees(gap):.2f}° from the {h[2]} seed (> {config.seed_consistency_n_sigma:.0f} σ)")
-    if sigma > config.max_sigma_rad:
-        problems.append(f"σθ2 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
-    reliable = not problems
-    reason = f"{n_in} inlier pairs of {len(qi)} matches" if reliable else "; ".join(problems)
-    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag)
+        gap_seed = (abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0]))), h[1], h[2])
+    votes_seen = _VoteEvidence(n_in, len(qi), runner_up, outside, outside_offset, shifted, gap_seed)
+    est = Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=False, diagnostics=diag)
+    checks = heading_checks(votes_seen, theta, sigma, config) + sigma_checks(est, max_sigma_heading_rad=config.max_sigma_rad)
+    if all(c.passed for c in checks):
+        return est.with_verdict(True, f"{n_in} inlier pairs of {len(qi)} matches", checks)
+    return est.with_verdict(False, render_checks(checks), checks)
+
+
+@dataclass(frozen=True)
+class _VoteEvidence:
+    """What the heading-only compass's rules read about its vote (:func:`heading_checks`): the inlier pairs of the
+    mode and the matched pairs; the runner-up mode's support; the strongest mode with the best matches just beyond a
+    seeded window (support, offset from the mode, rad); the re-vote from positions around the hypothesis
+    (``(mode_rad, support, offset_m)`` or None); the gap to the heading seed ``(gap_rad, σ_seed_rad, step)`` or
+    None."""
+
+    n_inliers: int
+    n_matches: int
+    runner_up: int
+    outside: int
+    outside_offset_rad: float
+    shifted: tuple[float, int, float] | None
+    gap_seed: tuple[float, float, str] | None
+
+
+def heading_checks(ev: _VoteEvidence, theta_rad: float, sigma_rad: float, config: CompassConfig) -> tuple[Check, ...]:
+    """The rules of the heading-only compass (θ2 from the vote mode, the patent's compass), in the order they apply:
+
+    * ``compass.inliers``, ``compass.inlier_ratio``: at least ``min_inliers`` pairs in the mode, at least
+      ``min_inlier_ratio`` of the matched pairs (the patent's ≥ 2 pairs, with margin);
+    * ``compass.ambiguity``: a second vote mode holds less than ``max_ambiguity`` of the mode's support;
+    * ``compass.distinct``: no stronger mode with the best matches just beyond a seeded window, more than three
+      bands away (a wrong seed "confirmed" by a look-alike inside its window);
+    * ``compass.position_shift`` (with a position hypothesis, when a re-vote from within ±2σ of it reaches
+      ``position_shift_support`` of the support): that mode within 3σθ2 of θ2;
+    * ``compass.seed_consistency`` (with a heading seed): θ2 within ``seed_consistency_n_sigma`` of it (σ of both).
+
+    The σ rule (``compass.sigma_heading``, :func:`~factorloc.estimators.base.sigma_checks`) follows them.
+    """
+    n_in = ev.n_inliers
+    ambiguity = ev.runner_up / n_in if n_in else 1.0
+    checks = [
+        Check.at_least("compass.inliers", "inlier pairs", n_in, config.min_inliers, Unit.COUNT),
+        Check.at_least("compass.inlier_ratio", "inlier ratio", n_in / ev.n_matches, config.min_inlier_ratio, Unit.FRACTION),
+        # fails at the limit itself (a second mode as strong as the limit allows is already ambiguous)
+        Check(
+            "compass.ambiguity",
+            "second vote mode's support over the mode's",
+            ambiguity < config.max_ambiguity,
+            ambiguity,
+            config.max_ambiguity,
+            Comparison.AT_MOST,
+            Unit.FRACTION,
+            "" if ambiguity < config.max_ambiguity else f"ambiguous: a second vote mode has {ev.runner_up} pairs vs {n_in}",
+        ),
+    ]
+    stronger = (
+        ev.outside >= config.max_outside_ambiguity * max(n_in, 1) and abs(ev.outside_offset_rad) > 3.0 * config.inlier_band_rad
+    )
+    checks.append(
+        Check.flag(
+            "compass.distinct",
+            "no stronger vote mode just beyond the seeded window",
+            not stronger,
+            failure=f"a stronger vote mode ({ev.outside} pairs vs {n_in}) {math.degrees(ev.outside_offset_rad):+.1f}° away, "
+            "beyond the seeded window",
+        )
+    )
+    shifted = ev.shifted
+    if shifted is not None and shifted[1] >= config.position_shift_support * n_in:
+        checks.append(
+            Check.at_most(
+                "compass.position_shift",
+                f"gap to the mode of {shifted[1]} pairs re-voted from a position {shifted[2]:.2f} m off the hypothesis",
+                abs(float(wrap_angle(shifted[0] - theta_rad))),
+                3.0 * sigma_rad,
+                Unit.RADIAN,
+                note="3σθ2",
+            )
+        )
+    if ev.gap_seed is not None:
+        gap, sigma_seed, step = ev.gap_seed
+        checks.append(
+            Check.at_most(
+                "compass.seed_consistency",
+                f"gap to the {step} seed",
+                gap,
+                config.seed_consistency_n_sigma * math.hypot(sigma_rad, sigma_seed),
+                Unit.RADIAN,
+                note=f"{config.seed_consistency_n_sigma:g} σ of both",
+            )
+        )
+    return tuple(checks)
 
 
 def _pose_from_bearings(
@@ -784,7 +866,6 @@ def _pose_from_bearings(
     Returns None (the heading-only path then runs) when the pose fails a check; the failed checks are put in
     ``diag["pose_rejected"]`` (only the inlier checks when they fail: the refinement is then skipped).
     """
-    from factorloc.verdicts import Check, Unit, render_checks
     from factorloc.vision import resection as rs
 
     depth = prepared.pose_depth or prepared.depth

@@ -62,11 +62,11 @@ import cv2
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses
+from factorloc.estimators.base import Hypotheses, sigma_checks
 from factorloc.estimators.compass import query_strips
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
-from factorloc.verdicts import SeedEvidence
+from factorloc.verdicts import Check, Comparison, SeedEvidence, Unit, render_checks
 from factorloc.vision.depth import DepthMap, depth_map, parallax_sigma, position_seed, uncorrected_parallax_sigma
 from factorloc.vision.ncc import correlate_wrapped, parabolic_peak
 from factorloc.vision.strips import Grid, Strip, texture_problem, to_gray
@@ -262,8 +262,17 @@ def estimate(
     return _estimate(prepared, query, hypotheses, config)
 
 
-def _unreliable(prepared: PreparedCorrelation, theta: float, reason: str, **diag: Any) -> Estimate:
-    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, math.pi, reliable=False, reason=reason, diagnostics=diag)
+def _unreliable(prepared: PreparedCorrelation, theta: float, check: Check, **diag: Any) -> Estimate:
+    """No heading measured: the failed ``check`` that stopped the step, at ``theta`` (reference frame) with σ = π."""
+    return Estimate.heading(
+        STEP,
+        prepared.theta_reference_rad + theta,
+        math.pi,
+        reliable=False,
+        reason=render_checks((check,)),
+        diagnostics=diag,
+        checks=(check,),
+    )
 
 
 def _template(strip: Strip, q: float) -> tuple[np.ndarray, float] | None:
@@ -429,11 +438,16 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
     theta_fallback = seed[0] if seed is not None else 0.0
     base: dict[str, Any] = {"window_rad": None if seed is None else seed[1]}
     if prepared.problem:
-        return _unreliable(prepared, theta_fallback, f"reference: {prepared.problem}", **base)
+        check = Check.flag(
+            "correlation.reference", "a usable reference panorama", False, failure=f"reference: {prepared.problem}"
+        )
+        return _unreliable(prepared, theta_fallback, check, **base)
     strips, dropped = query_strips(query, prepared.grid)
     base["dropped_views"] = dropped
     if not strips:
-        return _unreliable(prepared, theta_fallback, "no usable query view: " + "; ".join(dropped), **base)
+        failure = "no usable query view: " + "; ".join(dropped)
+        check = Check.flag("correlation.query_views", "a usable query view", False, failure=failure)
+        return _unreliable(prepared, theta_fallback, check, **base)
     position = position_seed(hypotheses) if prepared.depth is not None else None
     magnification = None
     if position is not None:
@@ -457,7 +471,8 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
     levels = [(m, max(0, -m), config.pyramid_ratio ** max(0, m)) for m in range(-n, n + 1)]
     curves = [cv for m, k, q in levels if (cv := _level_curve(prepared, strips, m, k, q, seed, config, offsets)) is not None]
     if not curves:
-        return _unreliable(prepared, theta_fallback, "no view fits the reference pyramid", **base)
+        check = Check.flag("correlation.pyramid", "a view that fits the reference pyramid", False)
+        return _unreliable(prepared, theta_fallback, check, **base)
     searched = sum(cv.positions for cv in curves)
     base.update(searched_positions=int(searched), searched_rad=2.0 * math.pi if seed is None else 2.0 * seed[1])
     best = max(curves, key=lambda cv: float(cv.c.max()))
@@ -536,24 +551,76 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
         views=len(strips),
         theta_relative_rad=theta,
     )
-    problems = []
-    if peak < config.min_peak:
-        problems.append(f"peak {peak:.3f} < Ct {config.min_peak:.3f}")
-    needed = config.ambiguity_margin + config.ambiguity_noise_gain * (1.0 - peak)
-    if second is not None and peak - second < needed:
-        problems.append(f"ambiguous: secondary peak {second:.3f} within {needed:.3f} of {peak:.3f}")
-    if at_edge:
-        problems.append("peak on the edge of the seeded window")
+    gap_seed = None
     if h is not None:
-        gap = abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0])))
-        if gap > config.seed_consistency_n_sigma * math.hypot(sigma, h[1]):
-            problems.append(f"{math.degrees(gap):.2f}° from the {h[2]} seed (> {config.seed_consistency_n_sigma:.0f} σ)")
-    if sigma > config.max_sigma_rad:
-        problems.append(f"σθ3 {math.degrees(sigma):.2f}° > {math.degrees(config.max_sigma_rad):.2f}°")
-    reliable = not problems
-    margin = "no secondary peak in the window" if second is None else f"secondary peak {second:.3f}"
-    reason = f"peak {peak:.3f} ≥ Ct {config.min_peak:.2f}, {margin}" if reliable else "; ".join(problems)
-    return Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=reliable, reason=reason, diagnostics=diag)
+        gap_seed = (abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0]))), h[1], h[2])
+    est = Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=False, diagnostics=diag)
+    checks = peak_checks(peak, second, at_edge, gap_seed, sigma, config) + sigma_checks(
+        est, max_sigma_heading_rad=config.max_sigma_rad
+    )
+    if all(c.passed for c in checks):
+        margin = "no secondary peak in the window" if second is None else f"secondary peak {second:.3f}"
+        return est.with_verdict(True, f"peak {peak:.3f} ≥ Ct {config.min_peak:.2f}, {margin}", checks)
+    return est.with_verdict(False, render_checks(checks), checks)
+
+
+def peak_checks(
+    peak: float,
+    second: float | None,
+    at_edge: bool,
+    gap_seed: tuple[float, float, str] | None,
+    sigma_rad: float,
+    config: CorrelationConfig,
+) -> tuple[Check, ...]:
+    """The rules of the panorama correlation (WO 2015/158682, claim 6: reliable only if the peak exceeds Ct), in
+    the order they apply:
+
+    * ``correlation.peak``: the normalized cross-correlation peak at least ``min_peak`` (Ct);
+    * ``correlation.ambiguity`` (with a secondary peak): the peak above it by at least
+      ``ambiguity_margin + ambiguity_noise_gain · (1 − peak)`` (a weaker peak needs a wider margin);
+    * ``correlation.window_edge``: the peak not on the edge of a seeded window (the maximum may lie beyond it);
+    * ``correlation.seed_consistency`` (with a heading seed ``(gap_rad, σ_seed_rad, step)``): θ3 within
+      ``seed_consistency_n_sigma`` of it (σ of both).
+
+    The σ rule (``correlation.sigma_heading``, :func:`~factorloc.estimators.base.sigma_checks`) follows them.
+    """
+    checks = [Check.at_least("correlation.peak", "correlation peak", peak, config.min_peak, note="Ct")]
+    if second is not None:
+        needed = config.ambiguity_margin + config.ambiguity_noise_gain * (1.0 - peak)
+        ok = not peak - second < needed
+        checks.append(
+            Check(
+                "correlation.ambiguity",
+                "margin of the peak over the secondary peak",
+                ok,
+                peak - second,
+                needed,
+                Comparison.AT_LEAST,
+                Unit.NONE,
+                "" if ok else f"ambiguous: secondary peak {second:.3f}",
+            )
+        )
+    checks.append(
+        Check.flag(
+            "correlation.window_edge",
+            "the peak inside the seeded window",
+            not at_edge,
+            failure="peak on the edge of the seeded window",
+        )
+    )
+    if gap_seed is not None:
+        gap, sigma_seed, step = gap_seed
+        checks.append(
+            Check.at_most(
+                "correlation.seed_consistency",
+                f"gap to the {step} seed",
+                gap,
+                config.seed_consistency_n_sigma * math.hypot(sigma_rad, sigma_seed),
+                Unit.RADIAN,
+                note=f"{config.seed_consistency_n_sigma:g} σ of both",
+            )
+        )
+    return tuple(checks)
 
 
 class CorrelationStep:

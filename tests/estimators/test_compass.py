@@ -14,6 +14,7 @@ from factorloc.errors import ConfigError, InputError
 from factorloc.estimators import compass
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.sim import photo
+from factorloc.verdicts import render_checks
 
 
 @pytest.fixture(scope="module")
@@ -110,6 +111,7 @@ def test_black_white_or_flat_images_give_an_unreliable_estimate_with_a_reason(sy
     est = compass.estimate(ref, Query(images=(cam,)), prepared=prepared)
     assert not est.reliable
     assert "black" in est.reason or "flat" in est.reason
+    assert [c.code for c in est.checks] == ["compass.query_views"] and not est.checks[0].passed
     assert est.sigma("theta") == pytest.approx(math.pi)
 
 
@@ -488,3 +490,30 @@ def test_a_planar_scan_alone_does_not_lend_the_compass_its_depth_by_default(sim_
             wrong[flag] += est.reliable and _err(est, theta) > 3.0 * est.sigma("theta")
     assert wrong[False] == 0
     assert wrong[True] >= 1  # the reason for the default (measured: 3 of these 40 views)
+
+
+def test_the_heading_only_verdict_is_typed_checks_and_the_sigma_rule_is_the_shared_one(synthetic) -> None:
+    # the heading-only compass (no depth here) reports its rules as typed checks in the order they apply, the reason
+    # rendered from them; failing only σθ2's limit makes it a hypothesis too broad to fuse, like every step's σ rule
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 0.7, 0.2, width_px=320, height_px=240)
+    hyp = at(ref).plus(Estimate.heading("odometry", 0.4 + 0.7 + 0.01, math.radians(3.0)))
+    est = compass.estimate(ref, Query(images=(cam,)), hyp, prepared=prepared)
+    codes = [c.code for c in est.checks]
+    assert est.reliable and all(c.passed for c in est.checks)
+    assert codes[:4] == ["compass.inliers", "compass.inlier_ratio", "compass.ambiguity", "compass.distinct"]
+    assert codes[-2:] == ["compass.seed_consistency", "compass.sigma_heading"]
+    inliers = est.checks[0]
+    assert inliers.value == est.diagnostics["inliers"] and est.reason.startswith(f"{inliers.value:.0f} inlier pairs")
+    sigma = est.sigma("theta")
+    tight = compass.CompassConfig(max_sigma_rad=0.5 * sigma)
+    narrow = compass.estimate(ref, Query(images=(cam,)), hyp, config=tight, prepared=compass.prepare(ref, tight))
+    failed = [c for c in narrow.checks if not c.passed]
+    assert not narrow.reliable and [c.code for c in failed] == ["compass.sigma_heading"]
+    assert failed[0].value == pytest.approx(sigma) and narrow.reason == render_checks(narrow.checks)
+    assert Hypotheses().plus(narrow).weak == (narrow,)
+    # a seed the views refute: the seed-consistency rule fails, with the gap it measured
+    wrong = at(ref).plus(Estimate.heading("odometry", 0.4 + 0.7 + math.radians(2.0), math.radians(0.3)))
+    far = compass.estimate(ref, Query(images=(cam,)), wrong, prepared=prepared)
+    gap = next(c for c in far.checks if c.code == "compass.seed_consistency")
+    assert not far.reliable and not gap.passed and gap.value > gap.limit

@@ -14,6 +14,7 @@ from factorloc.errors import ConfigError, InputError
 from factorloc.estimators import correlation as co
 from factorloc.estimators.base import Hypotheses, Step
 from factorloc.sim import photo
+from factorloc.verdicts import render_checks
 
 
 @pytest.fixture(scope="module")
@@ -114,6 +115,7 @@ def test_a_periodic_scene_is_flagged_ambiguous_without_a_seed() -> None:
     cam = photo.camera_view(eq, 0.3, 0.0, hfov_rad=math.radians(40), width_px=240, height_px=200)
     est = co.estimate(ref, Query(images=(cam,)), at(ref))
     assert not est.reliable and "ambiguous" in est.reason
+    assert "correlation.ambiguity" in [c.code for c in est.checks if not c.passed]
     # a seed that selects one period removes the ambiguity
     est = co.estimate(ref, Query(images=(cam,)), at(ref).plus(Estimate.heading("compass", 0.3, 0.02)))
     assert est.reliable and _err(est, 0.3) < math.radians(0.3)
@@ -125,8 +127,9 @@ def test_peak_below_ct_is_unreliable(synthetic) -> None:
     noisy = CameraImage(photo.photometric(cam.image_bgr, noise_sigma=60.0, rng=np.random.default_rng(0)), cam.hfov_rad)
     cfg = co.CorrelationConfig(min_peak=0.95)
     est = co.estimate(ref, Query(images=(noisy,)), config=cfg, prepared=prepared)
-    assert not est.reliable and "< Ct" in est.reason
-    assert est.diagnostics["peak"] < 0.95
+    assert not est.reliable and "(Ct)" in est.reason
+    peak = next(c for c in est.checks if c.code == "correlation.peak")
+    assert not peak.passed and peak.value == est.diagnostics["peak"] < 0.95 and peak.limit == 0.95
 
 
 @pytest.mark.parametrize("value", [0, 255, 90])
@@ -134,6 +137,7 @@ def test_black_white_or_flat_images_give_an_unreliable_estimate_with_a_reason(sy
     _, ref, prepared = synthetic
     est = co.estimate(ref, Query(images=(CameraImage(np.full((240, 320, 3), value, np.uint8)),)), prepared=prepared)
     assert not est.reliable and ("black" in est.reason or "flat" in est.reason)
+    assert [c.code for c in est.checks] == ["correlation.query_views"] and est.reason == render_checks(est.checks)
 
 
 def test_step_skips_missing_inputs_and_implements_the_protocol(synthetic) -> None:
@@ -312,3 +316,21 @@ def test_sim_seeded_by_the_compass_pose_commits_from_another_spot(sim_reference)
     # (16 views gave 4 posed before the dominant-group test used four half-cell-offset grids, 2026-12-04; 2 since)
     assert posed >= 3, f"only {posed} of 24 views gave a compass pose"
     assert sum(with_pose) > sum(odo_only), f"with the compass pose {sum(with_pose)}, odometry only {sum(odo_only)} of {posed}"
+
+
+def test_the_verdict_is_typed_checks_and_the_sigma_rule_is_the_shared_one(synthetic) -> None:
+    # the correlation's rules as typed checks in the order they apply (Ct first, the patent's claim 6), the reason
+    # rendered from them; failing only σθ3's limit makes it a hypothesis too broad to fuse, like every step's σ rule
+    eq, ref, prepared = synthetic
+    cam = photo.camera_view(eq, 0.4, 0.0, width_px=320, height_px=240)
+    hyp = at(ref).plus(Estimate.heading("compass", ref.T_world_reference.theta + 0.4, math.radians(1.0)))
+    est = co.estimate(ref, Query(images=(cam,)), hyp, prepared=prepared)
+    codes = [c.code for c in est.checks]
+    assert est.reliable and all(c.passed for c in est.checks)
+    assert codes[0] == "correlation.peak" and codes[-2:] == ["correlation.seed_consistency", "correlation.sigma_heading"]
+    assert est.checks[0].value == est.diagnostics["peak"] and est.checks[0].limit == co.CorrelationConfig().min_peak
+    tight = co.CorrelationConfig(max_sigma_rad=0.5 * est.sigma("theta"))
+    narrow = co.estimate(ref, Query(images=(cam,)), hyp, config=tight, prepared=co.prepare(ref, tight))
+    failed = [c for c in narrow.checks if not c.passed]
+    assert not narrow.reliable and [c.code for c in failed] == ["correlation.sigma_heading"]
+    assert narrow.reason == render_checks(narrow.checks) and Hypotheses().plus(narrow).weak == (narrow,)
