@@ -40,6 +40,7 @@ __all__ = [
     "extract_scan",
     "free_space_violation",
     "limit_count",
+    "median_range_m",
     "overlap_fitness",
     "polar_profile",
     "profile_and_violation",
@@ -113,6 +114,26 @@ def voxel_downsample_2d(points_m: np.ndarray, voxel_m: float) -> np.ndarray:
         sums = np.zeros((len(counts), 2))
         np.add.at(sums, inverse, pts)
     return sums / counts[:, None]
+
+
+def median_range_m(points_m: np.ndarray) -> float:
+    """The median range (m) of N×2 points (N ≥ 1, finite) from their frame's origin: ``np.median(np.hypot(x, y))``
+    in one compiled call (the same bits: the same hypot, the middle values selected exactly, and their mean as
+    ``0.5·(a + b)``). Not validated: for points a caller has checked."""
+    return float(_median_range(np.ascontiguousarray(points_m, dtype=np.float64)))
+
+
+@njit(cache=True)
+def _median_range(pts: np.ndarray) -> float:
+    n = pts.shape[0]
+    r = np.empty(n)
+    for i in range(n):
+        r[i] = math.hypot(pts[i, 0], pts[i, 1])
+    k = n // 2
+    part = np.partition(r, k)  # part[k] in place, the smaller values before it
+    if n % 2:
+        return part[k]
+    return 0.5 * (part[:k].max() + part[k])
 
 
 def limit_count(points_m: np.ndarray, max_points: int) -> np.ndarray:

@@ -14,6 +14,7 @@ from factorloc.registration.scan2d import (
     estimate_normals_2d,
     extract_scan,
     free_space_violation,
+    median_range_m,
     polar_profile,
     voxel_downsample_2d,
 )
@@ -311,3 +312,12 @@ def test_free_space_calls_without_validation_give_the_checked_figures():
     prof2, v2 = profile_and_violation(pa, a, b, T, 1.0, validate=False)
     assert np.array_equal(prof, prof2, equal_nan=True) and v == v2
     assert alignment_violation(pa, a, prof, b, T) == alignment_violation(pa, a, prof, b, T, validate=False)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 180, 181, 361])
+def test_the_compiled_median_range_is_numpys_median_of_the_hypot_bitwise(n):
+    rng = np.random.default_rng(n)
+    pts = rng.normal(size=(n, 2)) * rng.uniform(0.1, 30.0)
+    assert median_range_m(pts) == float(np.median(np.hypot(pts[:, 0], pts[:, 1])))
+    tied = np.repeat(pts[: max(1, n // 3)], 3, axis=0)[:n]  # repeated ranges: the middle values tie
+    assert median_range_m(tied) == float(np.median(np.hypot(tied[:, 0], tied[:, 1])))

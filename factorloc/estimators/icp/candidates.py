@@ -32,7 +32,13 @@ from factorloc.geometry import Pose2
 from factorloc.registration.global_search import search
 from factorloc.registration.icp2d import IcpResult, align
 from factorloc.registration.kernels import RobustKernel, kernel_from_name
-from factorloc.registration.scan2d import alignment_violation, overlap_fitness, polar_profile, profile_and_violation
+from factorloc.registration.scan2d import (
+    alignment_violation,
+    median_range_m,
+    overlap_fitness,
+    polar_profile,
+    profile_and_violation,
+)
 from factorloc.verdicts import Check
 
 __all__ = ["QueryScan", "Seeds", "Solution", "evidence", "global_attempts", "near_seed", "seed_fit", "seeded_attempt"]
@@ -214,13 +220,7 @@ def near_seed(prepared: IcpReference, sol: Solution, seeds: Seeds, config: IcpCo
 def _seeded_gate(config: IcpConfig, points: np.ndarray, seeds: Seeds) -> float:
     """The first correspondence gate of a seeded ICP: the seed's 3σ (position and heading at the median range)."""
     pos, head = seeds.position, seeds.heading
-    rng = np.hypot(points[:, 0], points[:, 1])
-    k = len(rng) // 2
-    if len(rng) % 2:
-        rho = float(np.partition(rng, k)[k])
-    else:
-        part = np.partition(rng, (k - 1, k))
-        rho = 0.5 * float(part[k - 1] + part[k])  # the median, without np.median's overhead
+    rho = median_range_m(points)
     sigma = math.hypot(max(pos[2], pos[3]), head[1] * rho)
     p = config.alignment.icp
     return min(p.max_correspondence_m, max(2.0 * p.min_correspondence_m, 3.0 * sigma + config.alignment.seed_gate_margin_m))
