@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from factorloc import Component, Estimate, Pose2, StepStatus
+from factorloc.estimators.base import heading_seed_check
 from factorloc.gating import (
     GatingConfig,
     StepRun,
@@ -31,6 +32,17 @@ def test_sigma_checks_use_the_long_axis_of_the_position_covariance() -> None:
     (ok,) = sigma_checks(Estimate.heading("compass", 0.0, math.radians(0.5)), max_sigma_heading_rad=math.radians(1.0))
     assert ok.passed and ok.code == "compass.sigma_heading"
     assert sigma_checks(Estimate.heading("compass", 0.0, 0.5), max_sigma_position_m=0.06) == ()  # measures no position
+
+
+def test_the_heading_seed_check_measures_the_wrapped_gap_against_both_sigmas() -> None:
+    # across ±π: 179° against a seed at -179° is 2° apart, within 3 σ of both (hypot(0.5°, 1°) · 3 = 3.35°)
+    seed = (math.radians(-179.0), math.radians(1.0), "odometry")
+    ok = heading_seed_check("compass", math.radians(179.0), math.radians(0.5), seed, 3.0)
+    assert ok.code == "compass.seed_consistency" and ok.passed
+    assert ok.value == pytest.approx(math.radians(2.0)) and ok.limit == pytest.approx(3.0 * math.radians(math.hypot(0.5, 1.0)))
+    far = heading_seed_check("correlation", math.radians(175.0), math.radians(0.5), seed, 3.0)
+    assert not far.passed and render_check(far) == "gap to the odometry seed 6° > 3.35° (3 σ of both)"
+    assert heading_seed_check("compass", 0.0, 0.01, None, 3.0) is None  # no seed, no rule
 
 
 def test_consistency_of_one_heading_against_another() -> None:

@@ -1,4 +1,5 @@
-"""The step protocol every estimator implements, the hypotheses it is seeded with, and the σ rule it applies."""
+"""The step protocol every estimator implements, the hypotheses it is seeded with, and the rules every step shares:
+the σ rule (:func:`sigma_checks`) and the heading steps' seed consistency (:func:`heading_seed_check`)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
+from factorloc.geometry import wrap_angle
 from factorloc.stats import largest_sigma
 from factorloc.types import Component, Estimate, Query, Reference
 from factorloc.verdicts import Check, Unit
@@ -131,3 +133,23 @@ def sigma_checks(
         sigma = estimate.sigma(Component.THETA)
         checks.append(Check.at_most(f"{estimate.step}.sigma_heading", "σθ", sigma, max_sigma_heading_rad, Unit.RADIAN))
     return tuple(checks)
+
+
+def heading_seed_check(
+    step: str, theta_rad: float, sigma_rad: float, seed: tuple[float, float, str] | None, n_sigma: float
+) -> Check | None:
+    """The heading steps' seed-consistency rule (``"<step>.seed_consistency"``): the measured world-frame heading
+    ``theta_rad`` ± ``sigma_rad`` within ``n_sigma`` of the heading seed ``(θ_rad, σ_rad, step)`` it was given
+    (:meth:`Hypotheses.heading`), σ of both; None without a seed. A heading searched in a window around a seed
+    and found at its far side is one the seed pulled there, not a confirmation."""
+    if seed is None:
+        return None
+    gap = abs(float(wrap_angle(theta_rad - seed[0])))
+    return Check.at_most(
+        f"{step}.seed_consistency",
+        f"gap to the {seed[2]} seed",
+        gap,
+        n_sigma * math.hypot(sigma_rad, seed[1]),
+        Unit.RADIAN,
+        note=f"{n_sigma:g} σ of both",
+    )

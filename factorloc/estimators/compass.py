@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses, sigma_checks
+from factorloc.estimators.base import Hypotheses, heading_seed_check, sigma_checks
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
 from factorloc.verdicts import Check, Comparison, SeedEvidence, Unit, render_checks
@@ -747,13 +747,15 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         mode_seed_gap_rad=None if window is None else abs(float(wrap_angle(mode - seed[0]))),
         theta_relative_rad=theta,
     )
-    gap_seed = None
-    h = hypotheses.heading()
-    if h is not None:
-        gap_seed = (abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0]))), h[1], h[2])
-    votes_seen = _VoteEvidence(n_in, len(qi), runner_up, outside, outside_offset, shifted, gap_seed)
-    est = Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=False, diagnostics=diag)
-    checks = heading_checks(votes_seen, theta, sigma, config) + sigma_checks(est, max_sigma_heading_rad=config.max_sigma_rad)
+    votes_seen = _VoteEvidence(n_in, len(qi), runner_up, outside, outside_offset, shifted)
+    theta_world = prepared.theta_reference_rad + theta
+    est = Estimate.heading(STEP, theta_world, sigma, reliable=False, diagnostics=diag)
+    seed_check = heading_seed_check(STEP, theta_world, sigma, hypotheses.heading(), config.seed_consistency_n_sigma)
+    checks = (
+        heading_checks(votes_seen, theta, sigma, config)
+        + (() if seed_check is None else (seed_check,))
+        + sigma_checks(est, max_sigma_heading_rad=config.max_sigma_rad)
+    )
     if all(c.passed for c in checks):
         return est.with_verdict(True, f"{n_in} inlier pairs of {len(qi)} matches", checks)
     return est.with_verdict(False, render_checks(checks), checks)
@@ -764,8 +766,7 @@ class _VoteEvidence:
     """What the heading-only compass's rules read about its vote (:func:`heading_checks`): the inlier pairs of the
     mode and the matched pairs; the runner-up mode's support; the strongest mode with the best matches just beyond a
     seeded window (support, offset from the mode, rad); the re-vote from positions around the hypothesis
-    (``(mode_rad, support, offset_m)`` or None); the gap to the heading seed ``(gap_rad, σ_seed_rad, step)`` or
-    None."""
+    (``(mode_rad, support, offset_m)`` or None)."""
 
     n_inliers: int
     n_matches: int
@@ -773,7 +774,6 @@ class _VoteEvidence:
     outside: int
     outside_offset_rad: float
     shifted: tuple[float, int, float] | None
-    gap_seed: tuple[float, float, str] | None
 
 
 def heading_checks(ev: _VoteEvidence, theta_rad: float, sigma_rad: float, config: CompassConfig) -> tuple[Check, ...]:
@@ -785,10 +785,11 @@ def heading_checks(ev: _VoteEvidence, theta_rad: float, sigma_rad: float, config
     * ``compass.distinct``: no stronger mode with the best matches just beyond a seeded window, more than three
       bands away (a wrong seed "confirmed" by a look-alike inside its window);
     * ``compass.position_shift`` (with a position hypothesis, when a re-vote from within ±2σ of it reaches
-      ``position_shift_support`` of the support): that mode within 3σθ2 of θ2;
-    * ``compass.seed_consistency`` (with a heading seed): θ2 within ``seed_consistency_n_sigma`` of it (σ of both).
+      ``position_shift_support`` of the support): that mode within 3σθ2 of θ2.
 
-    The σ rule (``compass.sigma_heading``, :func:`~factorloc.estimators.base.sigma_checks`) follows them.
+    The shared rules follow them: ``compass.seed_consistency`` (with a heading seed,
+    :func:`~factorloc.estimators.base.heading_seed_check`) and the σ rule (``compass.sigma_heading``,
+    :func:`~factorloc.estimators.base.sigma_checks`).
     """
     n_in = ev.n_inliers
     ambiguity = ev.runner_up / n_in if n_in else 1.0
@@ -829,18 +830,6 @@ def heading_checks(ev: _VoteEvidence, theta_rad: float, sigma_rad: float, config
                 3.0 * sigma_rad,
                 Unit.RADIAN,
                 note="3σθ2",
-            )
-        )
-    if ev.gap_seed is not None:
-        gap, sigma_seed, step = ev.gap_seed
-        checks.append(
-            Check.at_most(
-                "compass.seed_consistency",
-                f"gap to the {step} seed",
-                gap,
-                config.seed_consistency_n_sigma * math.hypot(sigma_rad, sigma_seed),
-                Unit.RADIAN,
-                note=f"{config.seed_consistency_n_sigma:g} σ of both",
             )
         )
     return tuple(checks)

@@ -62,7 +62,7 @@ import cv2
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses, sigma_checks
+from factorloc.estimators.base import Hypotheses, heading_seed_check, sigma_checks
 from factorloc.estimators.compass import query_strips
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
@@ -551,12 +551,13 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
         views=len(strips),
         theta_relative_rad=theta,
     )
-    gap_seed = None
-    if h is not None:
-        gap_seed = (abs(float(wrap_angle(prepared.theta_reference_rad + theta - h[0]))), h[1], h[2])
-    est = Estimate.heading(STEP, prepared.theta_reference_rad + theta, sigma, reliable=False, diagnostics=diag)
-    checks = peak_checks(peak, second, at_edge, gap_seed, sigma, config) + sigma_checks(
-        est, max_sigma_heading_rad=config.max_sigma_rad
+    theta_world = prepared.theta_reference_rad + theta
+    est = Estimate.heading(STEP, theta_world, sigma, reliable=False, diagnostics=diag)
+    seed_check = heading_seed_check(STEP, theta_world, sigma, h, config.seed_consistency_n_sigma)
+    checks = (
+        peak_checks(peak, second, at_edge, config)
+        + (() if seed_check is None else (seed_check,))
+        + sigma_checks(est, max_sigma_heading_rad=config.max_sigma_rad)
     )
     if all(c.passed for c in checks):
         margin = "no secondary peak in the window" if second is None else f"secondary peak {second:.3f}"
@@ -564,25 +565,18 @@ def _measure(prepared: PreparedCorrelation, query: Query, hypotheses: Hypotheses
     return est.with_verdict(False, render_checks(checks), checks)
 
 
-def peak_checks(
-    peak: float,
-    second: float | None,
-    at_edge: bool,
-    gap_seed: tuple[float, float, str] | None,
-    sigma_rad: float,
-    config: CorrelationConfig,
-) -> tuple[Check, ...]:
+def peak_checks(peak: float, second: float | None, at_edge: bool, config: CorrelationConfig) -> tuple[Check, ...]:
     """The rules of the panorama correlation (WO 2015/158682, claim 6: reliable only if the peak exceeds Ct), in
     the order they apply:
 
     * ``correlation.peak``: the normalized cross-correlation peak at least ``min_peak`` (Ct);
     * ``correlation.ambiguity`` (with a secondary peak): the peak above it by at least
       ``ambiguity_margin + ambiguity_noise_gain · (1 − peak)`` (a weaker peak needs a wider margin);
-    * ``correlation.window_edge``: the peak not on the edge of a seeded window (the maximum may lie beyond it);
-    * ``correlation.seed_consistency`` (with a heading seed ``(gap_rad, σ_seed_rad, step)``): θ3 within
-      ``seed_consistency_n_sigma`` of it (σ of both).
+    * ``correlation.window_edge``: the peak not on the edge of a seeded window (the maximum may lie beyond it).
 
-    The σ rule (``correlation.sigma_heading``, :func:`~factorloc.estimators.base.sigma_checks`) follows them.
+    The shared rules follow them: ``correlation.seed_consistency`` (with a heading seed,
+    :func:`~factorloc.estimators.base.heading_seed_check`) and the σ rule (``correlation.sigma_heading``,
+    :func:`~factorloc.estimators.base.sigma_checks`).
     """
     checks = [Check.at_least("correlation.peak", "correlation peak", peak, config.min_peak, note="Ct")]
     if second is not None:
@@ -608,18 +602,6 @@ def peak_checks(
             failure="peak on the edge of the seeded window",
         )
     )
-    if gap_seed is not None:
-        gap, sigma_seed, step = gap_seed
-        checks.append(
-            Check.at_most(
-                "correlation.seed_consistency",
-                f"gap to the {step} seed",
-                gap,
-                config.seed_consistency_n_sigma * math.hypot(sigma_rad, sigma_seed),
-                Unit.RADIAN,
-                note=f"{config.seed_consistency_n_sigma:g} σ of both",
-            )
-        )
     return tuple(checks)
 
 
