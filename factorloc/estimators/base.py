@@ -11,7 +11,7 @@ from typing import Any, Protocol, runtime_checkable
 from factorloc.geometry import wrap_angle
 from factorloc.stats import largest_sigma
 from factorloc.types import Component, Estimate, Query, Reference
-from factorloc.verdicts import Check, Unit
+from factorloc.verdicts import Check, Unit, render_checks
 
 
 @dataclass(frozen=True)
@@ -152,4 +152,12 @@ def heading_seed_check(
         n_sigma * math.hypot(sigma_rad, seed[1]),
         Unit.RADIAN,
         note=f"{n_sigma:g} σ of both",
+    )
+
+
+def heading_not_measured(step: str, theta_rad: float, check: Check, diagnostics: dict[str, Any]) -> Estimate:
+    """A heading step that stopped before measuring anything: unreliable at ``theta_rad`` (world frame; the seed's
+    heading or the reference's) with σ = π, the failed ``check`` that stopped it as its verdict and reason."""
+    return Estimate.heading(
+        step, theta_rad, math.pi, reliable=False, reason=render_checks((check,)), diagnostics=diagnostics, checks=(check,)
     )

@@ -76,7 +76,7 @@ from typing import Any
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses, heading_seed_check, sigma_checks
+from factorloc.estimators.base import Hypotheses, heading_not_measured, heading_seed_check, sigma_checks
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
 from factorloc.verdicts import Check, Comparison, SeedEvidence, Unit, render_checks
@@ -517,18 +517,9 @@ def _seed(hypotheses: Hypotheses, theta_reference_rad: float) -> tuple[float, fl
 
 
 def _unreliable(prepared: PreparedCompass, seed: tuple[float, float, str] | None, check: Check, **diag: Any) -> Estimate:
-    """No heading measured: the failed ``check`` that stopped the step, at the seed's heading (or the reference's) with
-    σ = π."""
+    """No heading measured: the failed ``check`` that stopped the step, at the seed's heading (or the reference's)."""
     theta = seed[0] if seed is not None else 0.0
-    return Estimate.heading(
-        STEP,
-        prepared.theta_reference_rad + theta,
-        math.pi,
-        reliable=False,
-        reason=render_checks((check,)),
-        diagnostics=diag,
-        checks=(check,),
-    )
+    return heading_not_measured(STEP, prepared.theta_reference_rad + theta, check, diag)
 
 
 def _estimate(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, config: CompassConfig) -> Estimate:

@@ -62,7 +62,7 @@ import cv2
 import numpy as np
 
 from factorloc.errors import ConfigError, InputError
-from factorloc.estimators.base import Hypotheses, heading_seed_check, sigma_checks
+from factorloc.estimators.base import Hypotheses, heading_not_measured, heading_seed_check, sigma_checks
 from factorloc.estimators.compass import query_strips
 from factorloc.geometry import Pose2, wrap_angle
 from factorloc.types import Estimate, Query, Reference
@@ -263,16 +263,8 @@ def estimate(
 
 
 def _unreliable(prepared: PreparedCorrelation, theta: float, check: Check, **diag: Any) -> Estimate:
-    """No heading measured: the failed ``check`` that stopped the step, at ``theta`` (reference frame) with σ = π."""
-    return Estimate.heading(
-        STEP,
-        prepared.theta_reference_rad + theta,
-        math.pi,
-        reliable=False,
-        reason=render_checks((check,)),
-        diagnostics=diag,
-        checks=(check,),
-    )
+    """No heading measured: the failed ``check`` that stopped the step, at ``theta`` (reference frame)."""
+    return heading_not_measured(STEP, prepared.theta_reference_rad + theta, check, diag)
 
 
 def _template(strip: Strip, q: float) -> tuple[np.ndarray, float] | None:
