@@ -51,6 +51,7 @@ import argparse
 import math
 import statistics
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -395,6 +396,7 @@ class PoseTally:
     posed: int = 0
     pos_err_near: list = field(default_factory=list)  # the poses' position errors at ≤ 2 m from the reference
     near_n: int = 0
+    failed_rules: Counter = field(default_factory=Counter)  # rule code -> unreliable estimates that failed it
 
     def add(self, est: Estimate | None, truth, seconds: float, distance_m: float, *, baseline=None) -> None:  # noqa: ANN001
         self.n += 1
@@ -409,6 +411,7 @@ class PoseTally:
                 self.wrong += err > math.radians(3.0)
             return
         if not est.reliable:
+            self.failed_rules.update({c.code for c in est.checks if not c.passed})
             return
         self.reliable += 1
         err = abs(math.remainder(est.value("theta") - truth.theta, 2 * math.pi))
@@ -422,6 +425,11 @@ class PoseTally:
             if distance_m <= 2.0:
                 self.pos_err_near.append(float(np.hypot(*e)))
         self.wrong += wrong
+
+    def rules(self) -> str:
+        """The rules that kept the estimates from being reliable: the share of the queries failing each (typed
+        check codes; an estimate may fail several)."""
+        return ", ".join(f"{code} {100 * k / max(self.n, 1):.1f} %" for code, k in self.failed_rules.most_common())
 
     def row(self, label: str) -> str:
         med = math.degrees(float(np.median(self.heading_err))) if self.heading_err else math.nan
@@ -525,6 +533,9 @@ def bench_pose(directories: list[Path], max_queries: int, overrides: list[str] |
         print(POSE_HEADER)
         for label, t in tallies.items():
             print(t.row(label))
+        for label, t in tallies.items():
+            if t.failed_rules:
+                print(f"why not reliable, {label}: {t.rules()}")
         for name in [v for v in variants if v != "heading only"]:
             _print_ratios(tallies, f"{name} / compass", f"{name} / correlation", name)
         for key, (tc, tr) in ((k, v) for k, v in prepared.items() if k[0] == "prepare CPU s"):
