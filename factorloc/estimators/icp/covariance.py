@@ -86,20 +86,17 @@ def covariance(result: IcpResult, config: IcpConfig) -> np.ndarray:
         cov = c.scale * cov
         if sb > 0.0:
             cov = cov + scale_heading(bias_covariance(result, sb), k)
+    # the sums below entry by entry in plain floats: numpy's elementwise operations on a 3×3, in the same order (the
+    # zeros of the weak term and of the floors added too), so the same bits without their calls' cost
+    rows = np.asarray(cov, dtype=np.float64).tolist()
     if c.weak_exponent != 1.0 and sb > 0.0:
-        cov = cov + _weak_direction(result, sb, c.weak_exponent)
+        weak_term = _weak_direction(result, sb, c.weak_exponent)
+        rows = [[rows[i][j] + weak_term[i][j] for j in range(3)] for i in range(3)]
     if c.inflation != 1.0:
-        cov = c.inflation * cov
-    cov = cov + _floors(c.sigma_floor_m, c.sigma_floor_rad)
-    return 0.5 * (cov + cov.T)
-
-
-@lru_cache(maxsize=8)
-def _floors(sigma_floor_m: float, sigma_floor_rad: float) -> np.ndarray:
-    """``diag(f_m², f_m², f_rad²)`` (read-only, made once per configuration)."""
-    out = np.diag([sigma_floor_m**2, sigma_floor_m**2, sigma_floor_rad**2])
-    out.setflags(write=False)
-    return out
+        rows = [[c.inflation * x for x in row] for row in rows]
+    floors = (c.sigma_floor_m**2, c.sigma_floor_m**2, c.sigma_floor_rad**2)
+    rows = [[rows[i][j] + (floors[i] if i == j else 0.0) for j in range(3)] for i in range(3)]
+    return np.array([[0.5 * (rows[i][j] + rows[j][i]) for j in range(3)] for i in range(3)])
 
 
 #: Smallest constraint strength the weak-direction term divides by (below it the geometry is degenerate and the
@@ -107,11 +104,11 @@ def _floors(sigma_floor_m: float, sigma_floor_rad: float) -> np.ndarray:
 _WEAK_FLOOR = 1e-3
 
 
-def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
+def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> list[list[float]]:
     """The extra variance ``σ_b² (λ^-p − λ^-1) v vᵀ`` along the weakest position direction ``v`` (eigenvalue λ of
-    the normal scatter ``H_pos / Σw``), 3×3 with zeros outside the position block."""
+    the normal scatter ``H_pos / Σw``), 3×3 (nested lists) with zeros outside the position block."""
     w = result.weights
-    out = np.zeros((3, 3))
+    out = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
     sw = float(w.sum()) if len(w) >= 3 else 0.0
     if not sw > 0.0:
         return out
@@ -123,7 +120,7 @@ def _weak_direction(result: IcpResult, sigma_b: float, p: float) -> np.ndarray:
     v0, v1 = (1.0, 0.0) if n == 0.0 else (v0 / n, v1 / n)
     # σ_b² (λ^-p − λ^-1) v vᵀ in plain floats (the same products as with 2-vectors, without their allocations)
     f = sigma_b**2 * (lam**-p - 1.0 / lam)
-    out[0, 0], out[0, 1], out[1, 0], out[1, 1] = f * (v0 * v0), f * (v0 * v1), f * (v1 * v0), f * (v1 * v1)
+    out[0][0], out[0][1], out[1][0], out[1][1] = f * (v0 * v0), f * (v0 * v1), f * (v1 * v0), f * (v1 * v1)
     return out
 
 
