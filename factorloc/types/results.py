@@ -66,7 +66,8 @@ class StepReport:
         """Why the step was not (wholly) fused, as rule codes: its failed checks' codes.
 
         A report without failed checks that is not fused counts under ``"<step>.<status>"`` (``"compass.skipped"``,
-        ``"icp.failed"``, or ``"<step>.unreliable"`` for an estimator that gives a reason but no checks).
+        ``"icp.failed"``, or ``"<step>.unreliable"`` for an estimator that gives a reason but no checks: a user's own step;
+        every built-in step reports typed checks).
         """
         codes = tuple(c.code for c in self.checks if not c.passed)
         if codes or self.status is StepStatus.FUSED:
