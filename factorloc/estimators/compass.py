@@ -738,7 +738,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
         mode_seed_gap_rad=None if window is None else abs(float(wrap_angle(mode - seed[0]))),
         theta_relative_rad=theta,
     )
-    votes_seen = _VoteEvidence(n_in, len(qi), runner_up, outside, outside_offset, shifted)
+    votes_seen = VoteEvidence(n_in, len(qi), runner_up, outside, outside_offset, shifted)
     theta_world = prepared.theta_reference_rad + theta
     est = Estimate.heading(STEP, theta_world, sigma, reliable=False, diagnostics=diag)
     seed_check = heading_seed_check(STEP, theta_world, sigma, hypotheses.heading(), config.seed_consistency_n_sigma)
@@ -753,7 +753,7 @@ def _measure(prepared: PreparedCompass, query: Query, hypotheses: Hypotheses, co
 
 
 @dataclass(frozen=True)
-class _VoteEvidence:
+class VoteEvidence:
     """What the heading-only compass's rules read about its vote (:func:`heading_checks`): the inlier pairs of the
     mode and the matched pairs; the runner-up mode's support; the strongest mode with the best matches just beyond a
     seeded window (support, offset from the mode, rad); the re-vote from positions around the hypothesis
@@ -767,7 +767,7 @@ class _VoteEvidence:
     shifted: tuple[float, int, float] | None
 
 
-def heading_checks(ev: _VoteEvidence, theta_rad: float, sigma_rad: float, config: CompassConfig) -> tuple[Check, ...]:
+def heading_checks(ev: VoteEvidence, theta_rad: float, sigma_rad: float, config: CompassConfig) -> tuple[Check, ...]:
     """The rules of the heading-only compass (θ2 from the vote mode, the patent's compass), in the order they apply:
 
     * ``compass.inliers``, ``compass.inlier_ratio``: at least ``min_inliers`` pairs in the mode, at least
