@@ -767,6 +767,14 @@ class VoteEvidence:
     shifted: tuple[float, int, float] | None
 
 
+def _ambiguity_note(ambiguity: float, limit: float, runner_up: int, n_inliers: int) -> str:
+    """The words of a failed ambiguity rule ("" when it passed); at the limit itself, that the limit fails."""
+    if ambiguity < limit:
+        return ""
+    at_limit = " (at the limit, which fails)" if ambiguity == limit else ""
+    return f"ambiguous: a second vote mode has {runner_up} pairs vs {n_inliers}{at_limit}"
+
+
 def heading_checks(ev: VoteEvidence, theta_rad: float, sigma_rad: float, config: CompassConfig) -> tuple[Check, ...]:
     """The rules of the heading-only compass (θ2 from the vote mode, the patent's compass), in the order they apply:
 
@@ -796,7 +804,7 @@ def heading_checks(ev: VoteEvidence, theta_rad: float, sigma_rad: float, config:
             config.max_ambiguity,
             Comparison.AT_MOST,
             Unit.FRACTION,
-            "" if ambiguity < config.max_ambiguity else f"ambiguous: a second vote mode has {ev.runner_up} pairs vs {n_in}",
+            _ambiguity_note(ambiguity, config.max_ambiguity, ev.runner_up, n_in),
         ),
     ]
     stronger = (
