@@ -17,8 +17,6 @@ from factorloc.errors import ConfigError, InputError
 from factorloc.geometry import wrap_angle
 
 DETECTORS = ("orb", "sift")
-#: The fewest rows from which OpenCV's gemm runs at its BLAS speed (measured with OpenCV 5.0's wheel; see ``_product``).
-_GEMM_MIN_ROWS = 100
 #: A query point with a single (L2) candidate is matched to it only below this distance (no ratio test possible).
 _MAX_SINGLE_L2 = 250.0
 #: Where OpenCV's SIFT (``enable_precise_upscale=False``) reports a keypoint, relative to the true position (px).
@@ -246,18 +244,30 @@ def match_in_window(
 
 
 def _product(q: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``−2 q·rᵀ`` (Nq×Nr float32) by OpenCV's gemm.
+    """``−2 q·rᵀ`` (Nq×Nr float32): numpy's product on one BLAS thread.
 
-    OpenCV's gemm, not numpy's matmul: numpy's OpenBLAS threads busy-wait after a threaded product, and on a
-    loaded 2-core machine that made the matching — and the next steps — 2.5–3× slower in wall time. OpenCV's gemm
-    is ~10× slower per row below 100 rows (OpenCV 5.0's wheel, which bundles OpenBLAS: 99 × 3613 × 128 took 11 ms
-    of CPU, 100 × 3613 × 128 0.95 ms): fewer rows are padded with zeros and their products dropped. The descriptors
-    are integer-valued (OpenCV's SIFT), so every product is exact in float32 whichever path computes it.
+    One thread, set around this product only (:func:`_one_blas_thread`): numpy's OpenBLAS threads busy-wait after
+    a threaded product, and on a loaded 2-core machine that made the matching, and the next steps, 2.5–3× slower
+    in wall time. On one thread it takes 0.25–0.3 of the CPU of OpenCV's gemm, used before (125 × 1682 × 128:
+    0.57 against 2.33 ms; `docs/calibration/vision.md`). The descriptors are integer-valued (OpenCV's SIFT), so
+    every product is exact in float32 whichever kernel computes it, and so is its double.
     """
-    if 0 < len(q) < _GEMM_MIN_ROWS:
-        padded = np.vstack([q, np.zeros((_GEMM_MIN_ROWS - len(q), q.shape[1]), dtype=np.float32)])
-        return cv2.gemm(padded, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)[: len(q)]
-    return cv2.gemm(q, r, -2.0, None, 0.0, flags=cv2.GEMM_2_T)
+    with _one_blas_thread():
+        out = np.matmul(q, r.T)
+    out *= np.float32(-2.0)
+    return out
+
+
+_BLAS_CONTROLLER: list = []
+
+
+def _one_blas_thread():  # noqa: ANN202 - threadpoolctl's context manager
+    """A context in which numpy's BLAS runs on one thread (threadpoolctl; the controller made once)."""
+    if not _BLAS_CONTROLLER:
+        from threadpoolctl import ThreadpoolController
+
+        _BLAS_CONTROLLER.append(ThreadpoolController())
+    return _BLAS_CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
 def _ratio_passes(best: np.ndarray, second: np.ndarray, q_sq_norms: np.ndarray, ratio: float, max_single: float) -> np.ndarray:
