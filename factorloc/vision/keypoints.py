@@ -9,6 +9,7 @@ from its column (:class:`~factorloc.vision.strips.Grid` / :class:`~factorloc.vis
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -258,16 +259,17 @@ def _product(q: np.ndarray, r: np.ndarray) -> np.ndarray:
     return out
 
 
-_BLAS_CONTROLLER: list = []
+@lru_cache(maxsize=1)
+def _blas_controller():  # noqa: ANN202 - threadpoolctl's controller
+    """threadpoolctl's view of the BLAS libraries loaded (made once, on the first product)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
 
 
 def _one_blas_thread():  # noqa: ANN202 - threadpoolctl's context manager
-    """A context in which numpy's BLAS runs on one thread (threadpoolctl; the controller made once)."""
-    if not _BLAS_CONTROLLER:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS_CONTROLLER.append(ThreadpoolController())
-    return _BLAS_CONTROLLER[0].limit(limits=1, user_api="blas")
+    """A context in which numpy's BLAS runs on one thread, its thread count restored on leaving."""
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 def _ratio_passes(best: np.ndarray, second: np.ndarray, q_sq_norms: np.ndarray, ratio: float, max_single: float) -> np.ndarray:

@@ -183,7 +183,9 @@ def heading_strength(result: IcpResult) -> float:
     # solve picks its kernels, and with them its rounding, by the instruction set) and without numpy's call costs
     a, b, c, d = h00 + reg, h01, h10, h11 + reg
     det = a * d - b * c
-    if not det > 0.0:  # the regularized position block of a PSD Hessian is positive definite; rounding aside
+    # det ≥ reg·(h00 + h11) = 1e-9·tr² for the PSD position block (one wall included), seven orders above the
+    # rounding of a·d − b·c (~1e-16·tr²): a non-positive det is no geometry but a non-finite Hessian
+    if not det > 0.0:
         return 0.0
     x0 = (d * h02 - b * h12) / det
     x1 = (a * h12 - c * h02) / det
