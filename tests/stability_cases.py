@@ -1,12 +1,14 @@
 """Fixed localization cases whose verdicts must not depend on rounding, and their fingerprints.
 
 Used by ``tests/test_stability.py`` in-process and, as a script, in subprocesses whose numerics are forced
-onto other paths (numba's JIT off, numpy's AVX-512 dispatch off): ``python tests/stability_cases.py
-[--shared DIR] [--perturb M]`` prints one JSON object, case id → fingerprint.
+onto other paths (numba's JIT off, the instruction sets of an AVX2-only or an SSE4.2-only CPU): ``python
+tests/stability_cases.py [--shared DIR] [--perturb M] [--vision]`` prints one JSON object, case id → fingerprint.
 
 Cases: one straight wall (the rank-deficient normal scatter of issue 13), a corridor of two parallel walls,
 and a fixed sample of real local relations of the Intel and ACES logs (every ``LASER_EVERY``-th relation
-shorter than 2 m of odometry path, when ``../shared/data/laser`` is present).
+shorter than 2 m of odometry path, when ``../shared/data/laser`` is present). With ``vision``: every
+``SAMPLE_EVERY``-th query of the shipped sample scenario (``data/sample``), through the whole hierarchy (the
+compass's SIFT and the correlation's image pyramids run in OpenCV, whose kernels depend on the CPU).
 """
 
 from __future__ import annotations
@@ -19,10 +21,13 @@ from pathlib import Path
 
 import numpy as np
 
-from factorloc import Localization, Odometry, Pose2, Query, Reference, Scan, localize
+from factorloc import Localization, Localizer, Odometry, Pose2, Query, Reference, Scan
 
 #: Every how many-th short local relation of each real log enters the sample.
 LASER_EVERY = 120
+#: Every how many-th query of the shipped sample scenario enters the visual cases.
+SAMPLE_EVERY = 1
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "sample"
 #: The odometry σ model of the relations benchmark (raw wheel odometry, honest 3σ tail).
 ODOMETRY_SIGMAS = {
     "drift_ratio": 0.2,
@@ -80,11 +85,22 @@ def laser_cases(laser_dir: Path) -> dict[str, tuple[Reference, Query]]:
     return out
 
 
-def all_cases(shared_dir: Path | None) -> dict[str, tuple[Reference, Query]]:
+def sample_cases() -> dict[str, tuple[Reference, Query]]:
+    """Every ``SAMPLE_EVERY``-th query of the shipped sample scenario (panorama, cloud and scan; faults included)."""
+    from factorloc.datasets import load_scenario
+
+    scenario = load_scenario(SAMPLE)
+    refs = {r.id: r.reference for r in scenario.references}
+    return {f"sample-{q.query.id}": (refs[q.reference_id], q.query) for q in scenario.queries[::SAMPLE_EVERY]}
+
+
+def all_cases(shared_dir: Path | None, vision: bool = False) -> dict[str, tuple[Reference, Query]]:
     cases = {"single-wall": single_wall(), "corridor": corridor()}
     laser = None if shared_dir is None else shared_dir / "data" / "laser"
     if laser is not None and (laser / "intel.sort.bag").is_file():
         cases.update(laser_cases(laser))
+    if vision:
+        cases.update(sample_cases())
     return cases
 
 
@@ -96,7 +112,8 @@ def perturbed(query: Query, delta_m: float, seed: int = 0) -> Query:
 
 
 def fingerprint(loc: Localization) -> dict[str, object]:
-    """What must not change: each step's status and failed check codes, the fused pose, what is undetermined."""
+    """What must not change: each step's status and failed check codes, the fused pose, what is undetermined; and
+    the fused σ per axis (m, m, rad; the scale of the pose's tolerance)."""
     steps = {
         r.name: {
             "status": r.status.value,
@@ -108,15 +125,18 @@ def fingerprint(loc: Localization) -> dict[str, object]:
     return {
         "steps": steps,
         "pose": loc.pose.as_array().tolist(),
+        "sigma": np.sqrt(np.diag(loc.covariance)).tolist(),
         "undetermined": sorted(c.value for c in loc.undetermined),
     }
 
 
-def run(shared_dir: Path | None, delta_m: float = 0.0) -> dict[str, dict[str, object]]:
+def run(shared_dir: Path | None, delta_m: float = 0.0, vision: bool = False) -> dict[str, dict[str, object]]:
     out = {}
-    for key, (ref, query) in all_cases(shared_dir).items():
+    localizers: dict[int, Localizer] = {}  # one per reference: the sample's queries share theirs
+    for key, (ref, query) in all_cases(shared_dir, vision).items():
         q = perturbed(query, delta_m) if delta_m else query
-        out[key] = fingerprint(localize(ref, q))
+        localizer = localizers.setdefault(id(ref), Localizer(ref))
+        out[key] = fingerprint(localizer.localize(q))
     return out
 
 
@@ -124,8 +144,9 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--shared", type=Path, default=None)
     parser.add_argument("--perturb", type=float, default=0.0)
+    parser.add_argument("--vision", action="store_true", help="the sample scenario's queries too")
     args = parser.parse_args(argv)
-    json.dump(run(args.shared, args.perturb), sys.stdout)
+    json.dump(run(args.shared, args.perturb, args.vision), sys.stdout)
     return 0
 
 
