@@ -22,6 +22,7 @@ from rich.console import Console
 
 import factorloc
 from factorloc import cli_convert, cli_map, cli_sweep, cli_track, jit
+from factorloc.cli_console import console_for
 from factorloc.cli_parallel import SchedulerOption, WorkersOption, batch_executor, failure_printer
 from factorloc.cli_render import (
     evaluation_steps_table,
@@ -76,7 +77,7 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-console = Console()
+console = console_for()
 
 PACKAGE_DATA = Path(__file__).resolve().parent.parent / "data"
 

@@ -14,9 +14,10 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.console import Console
 
-console = Console()
+from factorloc.cli_console import console_for
+
+console = console_for()
 
 
 def _extrinsics(values: list[str]) -> dict[str, Any]:

@@ -14,9 +14,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
-console = Console()
+from factorloc.cli_console import console_for
+
+console = console_for()
 
 
 def read_log(path: Path, scan_topic: str = "/scan", odom_topic: str = "/odom", max_scans: int | None = None):  # noqa: ANN201

@@ -12,13 +12,13 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
+from factorloc.cli_console import console_for
 from factorloc.cli_parallel import SchedulerOption, WorkersOption, batch_executor
 
 __all__ = ["register", "sweep"]
 
-console = Console()
+console = console_for()
 
 
 def _slug(name: str) -> str:

@@ -17,9 +17,10 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.console import Console
 
-console = Console(stderr=True)
+from factorloc.cli_console import console_for
+
+console = console_for(stderr=True)
 
 
 def track(

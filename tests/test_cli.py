@@ -12,7 +12,9 @@ import pytest
 from typer.testing import CliRunner
 
 import factorloc
+from factorloc import cli
 from factorloc.cli import app
+from factorloc.cli_console import PIPED_WIDTH
 from factorloc.datasets import Scenario, save_scenario
 
 runner = CliRunner()
@@ -122,10 +124,13 @@ def test_bench_on_a_tiny_scenario_writes_every_section(tmp_path: Path, room_dir:
 
 
 @pytest.mark.slow
-def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path: Path) -> None:
+def test_demo_evaluates_the_shipped_sample_and_writes_figures_and_json(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # the width of a piped console (pytest-xdist's workers set COLUMNS=80, which the console honours)
+    monkeypatch.setattr(cli.console, "width", PIPED_WIDTH)
     result = runner.invoke(app, ["demo", "--out", str(tmp_path / "demo")])
     assert result.exit_code == 0, result.output
     assert "What each step contributed" in result.output and "Fused pose vs ground truth" in result.output
+    assert "…" not in result.output  # no figure cut short
     out = json.loads((tmp_path / "demo" / "evaluation.json").read_text())
     assert out["queries"] == 30 and set(out["steps"]) == {"odometry", "compass", "correlation", "icp"}
     assert out["steps"]["odometry"]["status_rates"]["skipped"] == 0.0  # every sample query carries odometry
