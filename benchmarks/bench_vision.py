@@ -628,6 +628,8 @@ def bench_same_spot(n_views: int) -> None:
         print(tr.row(f"{label} / correlation"))
         print(tb.row(f"{label} / ORB vote baseline"))
         _print_ratios({"compass": tc, "correlation": tr, "ORB vote baseline": tb}, "compass", "correlation", label)
+        for step, t in (("compass", tc), ("correlation", tr)):
+            print(f"why not reliable, {label} / {step}: {t.rules()}")
 
 
 def bench_no_depth(directories: list[Path], max_queries: int, overrides: list[str] | None = None) -> None:
