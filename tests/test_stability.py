@@ -50,6 +50,14 @@ SSE42_CPU = {
 }
 
 
+def _host_has(*features: str) -> bool:
+    """Whether this CPU has the instruction-set features (numpy's names): a path that compiles for them must not run
+    where they would be illegal instructions."""
+    from numpy._core._multiarray_umath import __cpu_features__
+
+    return all(__cpu_features__.get(f, False) for f in features)
+
+
 def _in_subprocess(env: dict[str, str], tmp_path: Path, vision: bool = False) -> dict[str, dict[str, object]]:
     args = [sys.executable, str(HERE / "stability_cases.py")]
     if SHARED_ARG is not None:
@@ -113,6 +121,7 @@ def test_the_visual_cases_fuse_the_compass_and_the_correlation_somewhere(baselin
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(not _host_has("AVX2", "FMA3"), reason="this CPU has no AVX2: Haswell's kernels would not run")
 def test_an_avx2_only_cpu_gives_the_same_verdicts(baseline_vision, tmp_path: Path) -> None:
     _compare(baseline_vision, _in_subprocess(AVX2_CPU, tmp_path, vision=True), sigma_tol=1e-6)
 
