@@ -12,7 +12,7 @@ BLAS and OpenCV with two threads instead of one. The workloads: ``relations_benc
 ``--queries`` queries of ``--scenario`` (and of the shipped ``data/sample``). Printed per CPU path and workload:
 the results compared, how many are bit-identical, how many differ in a verdict (reliable, confidently wrong, the
 global search used, each step's status and failed check codes), and the largest difference of a value (m, rad;
-relations: the translation error and the NEES; queries: each step's estimate and the fused pose, also as a
+relations: the translation and rotation errors; queries: each step's estimate and the fused pose, also as a
 fraction of the fused σ). ``tests/test_stability.py`` holds the verdicts equal on fixed cases.
 """
 
@@ -68,7 +68,7 @@ def _relation_rows(laser: Path, every: int) -> dict[str, dict]:
                     d.get("icp_status"),
                     list(d.get("icp_failed_checks", ())),
                 ],
-                "values": [r.error_translation_m, r.error_rotation_deg, r.nees_position],
+                "values": [r.error_translation_m, math.radians(r.error_rotation_deg)],
                 "sigma": None,
             }
     return out
