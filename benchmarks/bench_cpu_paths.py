@@ -27,26 +27,15 @@ import sys
 import tempfile
 from pathlib import Path
 
+from factorloc.sim.determinism import EMULATED_CPUS
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_LASER = ROOT.parent / "shared" / "data" / "laser"
 
-#: Environment switches per emulated CPU path (``native`` = this CPU as it is, one thread).
+#: Environment switches per CPU path (``native`` = this CPU as it is, one thread).
 CPU_PATHS: dict[str, dict[str, str]] = {
     "native": {},
-    "avx2": {
-        "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
-        "NUMBA_CPU_NAME": "haswell",
-        "OPENBLAS_CORETYPE": "Haswell",
-        "OPENCV_CPU_DISABLE": "AVX512-SKX",
-        "OPENCV_IPP": "avx2",
-    },
-    "sse4.2": {
-        "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
-        "NUMBA_CPU_NAME": "nehalem",
-        "OPENBLAS_CORETYPE": "Nehalem",
-        "OPENCV_CPU_DISABLE": "AVX512-SKX,AVX2,FMA3,FP16,AVX",
-        "OPENCV_IPP": "sse42",
-    },
+    **EMULATED_CPUS,
     "threads-2": {"OMP_NUM_THREADS": "2", "OPENBLAS_NUM_THREADS": "2", "FACTORLOC_BENCH_CV_THREADS": "2"},
 }
 ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "FACTORLOC_BENCH_CV_THREADS": "1"}

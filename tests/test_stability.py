@@ -27,27 +27,11 @@ import numpy as np
 import pytest
 import stability_cases  # beside this file (pytest puts the test's folder on the path)
 
+from factorloc.sim.determinism import EMULATED_CPUS
+
 HERE = Path(__file__).resolve().parent
 SHARED = HERE.parents[0].parent / "shared"
 SHARED_ARG = SHARED if (SHARED / "data" / "laser").is_dir() else None
-
-
-#: The switches that make this CPU's libraries run the kernels of an AVX2-only CPU (Haswell: AVX2 and FMA, no AVX-512).
-AVX2_CPU = {
-    "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
-    "NUMBA_CPU_NAME": "haswell",
-    "OPENBLAS_CORETYPE": "Haswell",
-    "OPENCV_CPU_DISABLE": "AVX512-SKX",
-    "OPENCV_IPP": "avx2",
-}
-#: ... and of an SSE4.2-only one (Nehalem: no AVX, no FMA; x86-64-v2, the oldest CPU numpy 2 runs on).
-SSE42_CPU = {
-    "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
-    "NUMBA_CPU_NAME": "nehalem",
-    "OPENBLAS_CORETYPE": "Nehalem",
-    "OPENCV_CPU_DISABLE": "AVX512-SKX,AVX2,FMA3,FP16,AVX",
-    "OPENCV_IPP": "sse42",
-}
 
 
 def _host_has(*features: str) -> bool:
@@ -85,13 +69,14 @@ def _compare(a: dict, b: dict, pose_tol: float | None = None, sigma_tol: float |
 
 
 @pytest.fixture(scope="module")
-def baseline() -> dict[str, dict[str, object]]:
-    return stability_cases.run(SHARED_ARG)
+def baseline_vision() -> dict[str, dict[str, object]]:
+    return stability_cases.run(SHARED_ARG, vision=True)
 
 
 @pytest.fixture(scope="module")
-def baseline_vision() -> dict[str, dict[str, object]]:
-    return stability_cases.run(SHARED_ARG, vision=True)
+def baseline(baseline_vision) -> dict[str, dict[str, object]]:
+    """The cases without the sample's queries (each case is localized on its own: the same fingerprints)."""
+    return {k: v for k, v in baseline_vision.items() if not k.startswith("sample-")}
 
 
 def test_the_cases_cover_a_fused_wall_a_fused_corridor_and_real_relations(baseline) -> None:
@@ -123,9 +108,9 @@ def test_the_visual_cases_fuse_the_compass_and_the_correlation_somewhere(baselin
 @pytest.mark.slow
 @pytest.mark.skipif(not _host_has("AVX2", "FMA3"), reason="this CPU has no AVX2: Haswell's kernels would not run")
 def test_an_avx2_only_cpu_gives_the_same_verdicts(baseline_vision, tmp_path: Path) -> None:
-    _compare(baseline_vision, _in_subprocess(AVX2_CPU, tmp_path, vision=True), sigma_tol=1e-6)
+    _compare(baseline_vision, _in_subprocess(EMULATED_CPUS["avx2"], tmp_path, vision=True), sigma_tol=1e-6)
 
 
 @pytest.mark.slow
 def test_an_sse42_only_cpu_gives_the_same_verdicts(baseline_vision, tmp_path: Path) -> None:
-    _compare(baseline_vision, _in_subprocess(SSE42_CPU, tmp_path, vision=True), sigma_tol=1e-3)
+    _compare(baseline_vision, _in_subprocess(EMULATED_CPUS["sse4.2"], tmp_path, vision=True), sigma_tol=1e-3)

@@ -23,7 +23,30 @@ import cv2
 P = ParamSpec("P")
 R = TypeVar("R")
 
-__all__ = ["deterministic", "without_ipp"]
+__all__ = ["EMULATED_CPUS", "deterministic", "without_ipp"]
+
+
+#: The environment switches, per emulated CPU, that make this machine's libraries run another CPU's kernels: numpy's
+#: dispatch, numba's target, OpenBLAS's kernels, OpenCV's dispatch and Intel IPP's, set before the process starts
+#: (``tests/test_stability.py``, ``benchmarks/bench_cpu_paths.py``). ``"avx2"``: Haswell (AVX2 and FMA, no
+#: AVX-512); ``"sse4.2"``: Nehalem (no AVX, no FMA; x86-64-v2, the oldest CPU numpy 2 runs on). A path whose
+#: instructions this CPU lacks must not be run (illegal instructions).
+EMULATED_CPUS: dict[str, dict[str, str]] = {
+    "avx2": {
+        "NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR",
+        "NUMBA_CPU_NAME": "haswell",
+        "OPENBLAS_CORETYPE": "Haswell",
+        "OPENCV_CPU_DISABLE": "AVX512-SKX",
+        "OPENCV_IPP": "avx2",
+    },
+    "sse4.2": {
+        "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
+        "NUMBA_CPU_NAME": "nehalem",
+        "OPENBLAS_CORETYPE": "Nehalem",
+        "OPENCV_CPU_DISABLE": "AVX512-SKX,AVX2,FMA3,FP16,AVX",
+        "OPENCV_IPP": "sse42",
+    },
+}
 
 
 @contextmanager
