@@ -5,14 +5,17 @@
 running cluster. Dask is imported when the executor starts, never at ``import factorloc``; without the extra
 (``pip install factorloc[dask]``) starting raises a :class:`~factorloc.errors.ConfigError` saying so.
 
-One chunk is one Dask task (``client.submit(..., pure=False)``: no hashing of the inputs) whose items are
-scattered to a worker first; the ``shared`` object is scattered to every worker once
-(``client.scatter(broadcast=True)``). Results are
-released in input order as the chunks finish. A chunk whose function raised, or whose worker died more often
-than the scheduler allows (``distributed.scheduler.allowed-failures``), yields a
-:class:`~factorloc.parallel.base.TaskFailure` per item; the other chunks go on. An interrupt (``Ctrl-C``)
-or any exception in the consumer cancels the chunks still pending; :meth:`DaskExecutor.close` (or leaving the
-``with`` block) closes the client and the local cluster.
+One chunk is one Dask task (``client.submit(..., pure=False)``: no hashing of the inputs). The ``shared`` object
+is scattered to every worker once (``client.scatter(broadcast=True)``); a chunk's items are scattered to the
+worker that will run it just before its task is submitted. At most one chunk runs on each worker thread at a
+time (the next is sent when one finishes), so a worker that dies loses only the chunks it was running, and
+Dask's count of the workers a task was running on when they died is exact. Results are released in input order
+as the chunks finish. A chunk whose function raised, or whose worker died more often than the scheduler allows
+(``distributed.scheduler.allowed-failures``), yields a :class:`~factorloc.parallel.base.TaskFailure` per item;
+the other chunks go on. A chunk whose scattered data went with a dead worker before it ran (its items, or the
+only copy of ``shared``) is sent again, not failed. An interrupt (``Ctrl-C``) or any exception in the consumer
+cancels the chunks still running; :meth:`DaskExecutor.close` (or leaving the ``with`` block) closes the client
+and the local cluster.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Hashable, Iterator, Sequence
+from concurrent.futures import CancelledError
 from typing import Any
 
 from factorloc.errors import ConfigError, InputError
@@ -48,6 +52,14 @@ SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 #: one thread, ``benchmarks/bench_parallel.py``, docs/scale.md). A local cluster's workers keep glibc's default
 #: (the value None unsets it, Dask's documented override); a user's own cluster keeps its own setting.
 _TRIM_KEY = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+
+#: Dask's active memory manager (on by default, every 2 s) drops the replicas of a key that no waiting task on
+#: that worker needs, the broadcast ``shared`` object's included: a worker then fetches it from another one for
+#: its next chunk, and the death of the last holder loses it for every chunk. A local cluster runs without it.
+_AMM_KEY = "distributed.scheduler.active-memory-manager.start"
+
+#: How many times a chunk whose scattered data was lost with a dead worker (before it ran) is sent again.
+_LOST_DATA_RESENDS = 3
 
 
 def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence[Any]:
@@ -151,7 +163,7 @@ class DaskExecutor:
             else:
                 import dask
 
-                overrides: dict[str, Any] = {_TRIM_KEY: None}  # glibc's own allocator tuning (see _TRIM_KEY)
+                overrides: dict[str, Any] = {_TRIM_KEY: None, _AMM_KEY: False}  # see _TRIM_KEY, _AMM_KEY
                 if self.allowed_failures is not None:
                     overrides["distributed.scheduler.allowed-failures"] = self.allowed_failures
                 with dask.config.set(overrides):
@@ -204,6 +216,11 @@ class DaskExecutor:
         return max(1, len(self._client.scheduler_info().get("workers", {})))
 
     # --- work ---------------------------------------------------------------
+    def _free_slots(self) -> list[str]:
+        """One entry per idle worker thread known to the scheduler now (its address, repeated per thread)."""
+        workers = self._client.scheduler_info(n_workers=-1).get("workers", {})
+        return [addr for addr, info in workers.items() for _ in range(max(1, int(info.get("nthreads", 1))))]
+
     def map_chunks(
         self,
         fn: ChunkFunction,
@@ -219,42 +236,77 @@ class DaskExecutor:
         n = len(items)
         size = chunk_size or default_chunk_size(n, self.workers, self.chunks_per_worker)
         chunks = chunk_indices(n, size, group)
-        # ``shared`` goes to every worker once; each task names it, the worker hands its own copy to the function
-        shared_future = client.scatter(shared, broadcast=True, hash=False) if chunks else None
-        # each chunk's items go straight to a worker (not inside the task graph through the scheduler), one chunk
-        # after another, each submitted as soon as it is there: the first chunks run while the later ones travel
-        data, futures = [], []
-        for idx in chunks:
-            (d,) = client.scatter([[items[i] for i in idx]], hash=False)
-            data.append(d)
-            futures.append(client.submit(_run_chunk, fn, d, shared_future, pure=False))
-        index_of = {f.key: idx for f, idx in zip(futures, chunks, strict=True)}
+        if not chunks:
+            return
+        # ``shared`` goes to every worker once (wrapped: a list or dict would be scattered element by element)
+        shared_futures = [client.scatter([shared], broadcast=True, hash=False)[0]]
+        waiting = list(range(len(chunks)))  # chunk numbers not yet sent, in order
+        waiting.reverse()
+        running: dict[str, tuple[int, Any, str, Any]] = {}  # task key -> (chunk number, data, worker, task)
+        resends = [0] * len(chunks)
+        finished = distributed.as_completed()
+
+        def send() -> None:
+            """Send waiting chunks to the idle worker threads, each chunk's items scattered to its worker."""
+            slots = self._free_slots()
+            for _, _, addr, _ in running.values():
+                if addr in slots:
+                    slots.remove(addr)
+            if not slots and not running and waiting:  # every worker died: wait for the nanny's new ones
+                client.wait_for_workers(1, timeout=120)
+                slots = self._free_slots()
+            while waiting and slots:
+                k, addr = waiting.pop(), slots.pop(0)
+                if shared_futures[-1].status != "finished":  # its last copy went with a dead worker
+                    shared_futures.append(client.scatter([shared], broadcast=True, hash=False)[0])
+                (data,) = client.scatter([[items[i] for i in chunks[k]]], workers=[addr], hash=False)
+                fut = client.submit(
+                    _run_chunk, fn, data, shared_futures[-1], pure=False, workers=[addr], allow_other_workers=True
+                )
+                running[fut.key] = (k, data, addr, fut)
+                finished.add(fut)
+
         order = InputOrder(n)
         done = failed = 0
         try:
-            for fut in distributed.as_completed(futures):
-                idx = index_of[fut.key]
-                results = self._results_of(fut, idx, distributed)
+            send()
+            for fut in finished:
+                k, data, _, _ = running.pop(fut.key)
+                idx = chunks[k]
+                results = self._results_of(fut, idx, distributed, resend=resends[k] < _LOST_DATA_RESENDS)
+                data.release()
+                if results is None:  # its data was lost before it ran: send it again
+                    resends[k] += 1
+                    waiting.append(k)
+                    send()
+                    continue
+                send()  # the next chunk runs while the consumer takes these results
                 done += len(idx)
                 failed += sum(isinstance(r, TaskFailure) for r in results)
                 if progress is not None:
                     progress(done, n, failed)
                 yield from order.add(idx, results)
         finally:  # Ctrl-C, an error in the consumer, or an abandoned generator: nothing keeps running
-            pending = [f for f in futures if not f.done()]
-            if pending:
-                client.cancel(pending)
-            for d in data:
-                d.release()
-            if shared_future is not None:
-                shared_future.release()
+            if running:
+                client.cancel([task for _, _, _, task in running.values()])
+            for _, data, _, _ in running.values():
+                data.release()
+            for f in shared_futures:
+                f.release()
 
     @staticmethod
-    def _results_of(fut: Any, idx: Sequence[int], distributed: Any) -> Sequence[Any]:
+    def _results_of(fut: Any, idx: Sequence[int], distributed: Any, *, resend: bool) -> Sequence[Any] | None:
+        """The chunk's results, a failure per item, or None: its data was lost before it ran (``resend``)."""
         try:
             return fut.result()
         except distributed.KilledWorker as exc:
             log.warning("the worker running %d items died: %s", len(idx), exc)
+            return [failure_of(exc, worker_died=True)] * len(idx)
+        except CancelledError as exc:  # not by this generator: by the scheduler, its input data lost
+            if resend:
+                log.warning("a chunk of %d items lost its data with a dead worker; sending it again", len(idx))
+                return None
+            log.warning("a chunk of %d items lost its data %d times: %s", len(idx), _LOST_DATA_RESENDS + 1, exc)
             return [failure_of(exc, worker_died=True)] * len(idx)
         except Exception as exc:  # the chunk's function raised in the worker
             log.warning("a chunk of %d items failed: %s: %s", len(idx), type(exc).__name__, exc)

@@ -128,6 +128,21 @@ def test_a_dying_worker_is_reported_and_the_batch_finishes(dask2: DaskExecutor) 
     assert len(failed) == 2 and all(f.worker_died for f in failed) and "KilledWorker" in failed[0].error
 
 
+def _die_on_one_and_four(chunk: Sequence[int], shared: Any) -> list[int]:
+    if 1 in chunk or 4 in chunk:
+        os._exit(1)
+    return [x + shared["step"] for x in chunk]
+
+
+def test_two_dying_workers_lose_only_the_chunks_they_ran(dask2: DaskExecutor) -> None:
+    # one chunk runs per worker thread at a time: a worker's death fails only its own chunk, never one that was
+    # waiting (with allowed_failures=0 Dask fails every task it had sent to the dead worker); shared is a dict
+    dask2.client.wait_for_workers(2, timeout=120)
+    out = list(dask2.map_chunks(_die_on_one_and_four, list(range(8)), 1, shared={"step": 10}))
+    assert [r if not isinstance(r, TaskFailure) else None for r in out] == [10, None, 12, 13, None, 15, 16, 17]
+    assert all(r.worker_died for r in out if isinstance(r, TaskFailure))
+
+
 def _opencv_threads() -> int:
     import cv2
 
