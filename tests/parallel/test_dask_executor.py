@@ -24,6 +24,7 @@ from factorloc.datasets.rosbag import read_laser_log
 from factorloc.evaluation import evaluate, run_hierarchy
 from factorloc.evaluation.relations import read_relations, relations_benchmark
 from factorloc.parallel import DaskExecutor, TaskFailure
+from factorloc.parallel.dask_executor import _run_chunk
 
 pytest.importorskip("distributed")
 pytestmark = pytest.mark.slow  # ~60-90 s on the shared 2 cores: a cluster start, the sample twice, 16 relations twice
@@ -165,3 +166,15 @@ def test_local_workers_keep_glibcs_allocator_tuning(dask2: DaskExecutor) -> None
     # the local cluster's workers inherit whatever this process has instead (normally nothing)
     values = set(dask2.client.run(_trim_threshold).values())
     assert values == {os.environ.get("MALLOC_TRIM_THRESHOLD_")}
+
+
+def test_a_chunk_cancelled_by_the_scheduler_is_sent_again_then_failed(dask2: DaskExecutor) -> None:
+    # what a chunk whose scattered input died with a worker gets: a cancelled future (here cancelled by hand)
+    import distributed
+
+    # restricted to a worker that does not exist: it never runs before it is cancelled
+    fut = dask2.client.submit(_run_chunk, _die_on_three, [1], None, pure=False, workers=["tcp://127.0.0.1:9"])
+    dask2.client.cancel([fut])
+    assert DaskExecutor._results_of(fut, [0], distributed, resend=True) is None
+    (failure,) = DaskExecutor._results_of(fut, [0], distributed, resend=False)
+    assert isinstance(failure, TaskFailure) and failure.worker_died and "CancelledError" in failure.error
