@@ -53,8 +53,11 @@ delete-a-group jackknife and so that no direction rests on one group of points).
 (``compass.pose.*``: inliers, inlier ratio, condition number with a stated tolerance, residual σ, σ position
 and heading, a rival optimum, consistency with the seeds) the compass emits that pose with that covariance —
 no parallax inflation remains, at the reference's spot or away from it — and, without a position hypothesis
-to check its position against, only its heading (``pose_needs_position_seed``). Otherwise the heading-only
-path below runs (the fallback when depth or geometry is missing). Figures: ``docs/calibration/vision.md``.
+to check its position against, only its heading (``pose_needs_position_seed``). When the resection cannot tell
+the robot from the reference's own spot (a Wald test of the reference position, :func:`_at_reference`), the
+pose is re-estimated with the position fixed there: the same-spot heading without the position's share of
+error. Otherwise the heading-only path below runs (the fallback when depth or geometry is missing). Figures:
+``docs/calibration/vision.md``.
 
 Calibration of the heading-only path (measured, not changed in session 3): over the reliable θ2 of the
 held-out scenarios ``factorloc simulate --world apartment --queries 300 --seed
@@ -249,6 +252,14 @@ class CompassConfig:
     pose_seed_consistency_d2
         Unreliable when the resected position is further than this squared Mahalanobis distance (2 dof,
         combined covariances; 11.83 ≈ 3σ) from a position hypothesis.
+    same_spot_max_d2
+        The test of "the robot stands at the reference's spot" on a resected pose (:func:`_at_reference`): when
+        the reference position lies within this squared Mahalanobis distance (2 dof) of the resected position,
+        under the resection's own covariance before its floors, and that covariance's largest σ is at most
+        ``same_spot_max_sigma_m`` (5 cm: a loose resection cannot refuse a spot decimetres away), the pose is
+        re-estimated with the position fixed there (the heading a weighted mean of the inliers' votes from that
+        point, exact for bearings) and emitted at the reference position with the resection's covariance. 5.99
+        is χ²₂'s 95 % quantile; ``None`` turns the test off. See ``docs/calibration/vision.md#same-spot``.
     pose_needs_position_seed
         Without a position hypothesis (no reliable odometry) emit only the resected pose's heading (its marginal
         σ): nothing then checks the position against a look-alike. Found on the held-out scenarios (seeds 11
@@ -311,6 +322,8 @@ class CompassConfig:
     pose_residual_floor_px: float = 0.25
     pose_group_m: float = 0.3
     pose_seed_consistency_d2: float = 11.83
+    same_spot_max_d2: float | None = 5.99
+    same_spot_max_sigma_m: float = 0.05
     pose_needs_position_seed: bool = True
 
     def __post_init__(self) -> None:
@@ -339,6 +352,10 @@ class CompassConfig:
             raise ConfigError(f"compass.min_inlier_ratio must be in [0, 1], got {self.min_inlier_ratio!r}")
         if not 0.0 < self.max_ambiguity <= 1.0:
             raise ConfigError(f"compass.max_ambiguity must be in (0, 1], got {self.max_ambiguity!r}")
+        if self.same_spot_max_d2 is not None and not (math.isfinite(self.same_spot_max_d2) and self.same_spot_max_d2 > 0.0):
+            raise ConfigError(f"compass.same_spot_max_d2 must be > 0 and finite, or None, got {self.same_spot_max_d2!r}")
+        if not (math.isfinite(self.same_spot_max_sigma_m) and self.same_spot_max_sigma_m > 0.0):
+            raise ConfigError(f"compass.same_spot_max_sigma_m must be > 0 and finite, got {self.same_spot_max_sigma_m!r}")
         if not self.spread_bound_gain > 0.0:
             raise ConfigError(f"compass.spread_bound_gain must be > 0, got {self.spread_bound_gain!r}")
         if not 0.0 < self.spread_confidence < 1.0:
@@ -908,6 +925,7 @@ def _pose_from_bearings(
             cov = cov + s_res**2 * extra  # no direction trusted beyond what the other groups verify (inf: unverifiable)
         if not np.all(np.isfinite(cov)):
             cov = np.diag([1e6, 1e6, math.pi**2])  # rests on one group alone: fails the σ checks below
+        cov_fit = cov.copy()  # the resection's own, before the floors: what the same-spot test reads
         cov[:2, :2] += np.eye(2) * config.pose_sigma_floor_m**2
         cov[2, 2] += config.sigma_floor_rad**2
         sigma_pos = float(math.sqrt(np.linalg.eigvalsh(cov[:2, :2])[-1]))
@@ -977,22 +995,76 @@ def _pose_from_bearings(
     if failed:
         diag["pose_rejected"] = render_checks(failed)
         return None
+    pose = final.pose
+    at_ref = _at_reference(pts[inl], az_query_rad[inl], weights[inl], pose, cov_fit, depth.T_world_reference, config, diag)
+    diag["same_spot_d2"] = at_ref[0]
+    diag["at_reference"] = at_ref[1] is not None
+    if at_ref[1] is not None:
+        pose = at_ref[1]
     displacement = float(np.hypot(final.pose.x - depth.T_world_reference.x, final.pose.y - depth.T_world_reference.y))
     diag.update(
         inliers=n_in,
         inlier_ratio=n_in / len(inl),
         displacement_m=displacement,
-        theta_relative_rad=float(wrap_angle(final.pose.theta - prepared.theta_reference_rad)),
+        theta_relative_rad=float(wrap_angle(pose.theta - prepared.theta_reference_rad)),
     )
     if config.pose_needs_position_seed and hypotheses.position() is None:
         # nothing corroborates the position: a look-alike texture a translation away (the same picture on another
         # wall) fits the bearings as well as the truth, with the heading unchanged. Keep the heading marginal.
         reason = f"heading of a pose from {n_in} bearings of {len(inl)} matches (no position hypothesis to check its position)"
         return Estimate.heading(
-            STEP, final.pose.theta, sigma_theta, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks)
+            STEP, pose.theta, sigma_theta, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks)
         )
-    reason = f"pose from {n_in} bearings of {len(inl)} matches ({displacement:.2f} m from the reference)"
-    return Estimate.pose(STEP, final.pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
+    if at_ref[1] is not None:
+        where = f"at the reference: {displacement * 100:.1f} cm away, d² {at_ref[0]:.2f}"
+    else:
+        where = f"{displacement:.2f} m from the reference"
+    reason = f"pose from {n_in} bearings of {len(inl)} matches ({where})"
+    return Estimate.pose(STEP, pose, covariance=cov, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks))
+
+
+def _at_reference(
+    points_xy_m: np.ndarray,
+    bearings_rad: np.ndarray,
+    weights: np.ndarray,
+    pose: Pose2,
+    cov_fit: np.ndarray,
+    T_world_reference: Pose2,
+    config: CompassConfig,
+    diag: dict[str, Any],
+) -> tuple[float, Pose2 | None]:
+    """Whether the resected bearings say the robot stands at the reference's spot, and the pose if they do.
+
+    A nested-model test (Wald): ``d² = Δᵀ Σ⁻¹ Δ`` with ``Δ`` the resected position (world, m) minus the
+    reference's and ``Σ`` the resection's position covariance before its floors (``cov_fit``). When
+    ``d² ≤ same_spot_max_d2`` and Σ's largest σ is at most ``same_spot_max_sigma_m``, the position is fixed at
+    the reference and the heading re-estimated there: with the position known the bearing residuals are
+    linear in θ, so the weighted least-squares heading is the ``weights``-weighted mean of the inliers' votes
+    (world azimuth of each point from the reference minus its query bearing), taken about the resected heading.
+    Returns ``(d², Pose2 or None)``; ``d²`` is inf when ``Σ`` is singular. The covariance the compass emits
+    stays the resection's: the restricted heading differs from the resected one by ``K Δ`` (``K = Σ_θp Σ_pp⁻¹``),
+    at most ``√d²`` times the part of the heading's σ that the position explains (``√(Σ_θθ − Σ_θθ|p)``), so
+    within 2.45 σ at the default. Beyond the patent (its compass gives θ only, with no position to test).
+    """
+    if config.same_spot_max_d2 is None:
+        return math.nan, None
+    delta = np.array([pose.x - T_world_reference.x, pose.y - T_world_reference.y])
+    s_pos = cov_fit[:2, :2]
+    # Σ is a covariance: positive definite unless the fit left a direction unobserved (then d² is inf)
+    scale = float(np.trace(s_pos))
+    if not (math.isfinite(scale) and scale > 0.0) or np.linalg.eigvalsh(s_pos)[0] <= 1e-12 * scale:
+        return math.inf, None
+    d2 = float(delta @ np.linalg.solve(s_pos, delta))
+    sigma_max = float(math.sqrt(np.linalg.eigvalsh(s_pos)[-1]))
+    diag["same_spot_sigma_m"] = sigma_max
+    # only a resection that locates the robot well can say "here": a loose one (σ of decimetres) cannot refuse a
+    # spot half a metre away (seed 41's q0063: d² 5.2 at 0.49 m, σ 0.2 m)
+    if d2 > config.same_spot_max_d2 or sigma_max > config.same_spot_max_sigma_m:
+        return d2, None
+    votes = np.arctan2(points_xy_m[:, 1] - T_world_reference.y, points_xy_m[:, 0] - T_world_reference.x) - bearings_rad
+    offset = np.asarray(wrap_angle(votes - pose.theta), dtype=np.float64)
+    theta = float(wrap_angle(pose.theta + float(np.sum(weights * offset) / np.sum(weights))))
+    return d2, Pose2(T_world_reference.x, T_world_reference.y, theta)
 
 
 def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, *, cell_m: float) -> tuple[float, np.ndarray]:
