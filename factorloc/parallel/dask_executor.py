@@ -12,8 +12,9 @@ time (the next is sent when one finishes), so a worker that dies loses only the 
 Dask's count of the workers a task was running on when they died is exact. Results are released in input order
 as the chunks finish. A chunk whose function raised, or whose worker died more often than the scheduler allows
 (``distributed.scheduler.allowed-failures``), yields a :class:`~factorloc.parallel.base.TaskFailure` per item;
-the other chunks go on. A chunk whose scattered data went with a dead worker before it ran (its items, or the
-only copy of ``shared``) is sent again, not failed. An interrupt (``Ctrl-C``) or any exception in the consumer
+the other chunks go on. A chunk whose scattered data died with a worker (its items, or the only copy of
+``shared``) cannot be retried by Dask: it is sent again, at most 3 times, then reported failed with
+``worker_died``. Each result is gathered as soon as its task finishes. An interrupt (``Ctrl-C``) or any exception in the consumer
 cancels the chunks still running; :meth:`DaskExecutor.close` (or leaving the ``with`` block) closes the client
 and the local cluster.
 """
@@ -58,8 +59,16 @@ _TRIM_KEY = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 #: its next chunk, and the death of the last holder loses it for every chunk. A local cluster runs without it.
 _AMM_KEY = "distributed.scheduler.active-memory-manager.start"
 
-#: How many times a chunk whose scattered data was lost with a dead worker (before it ran) is sent again.
+#: How many times a chunk whose scattered data died with a worker is sent again (Dask cannot retry such a task
+#: itself: its input is gone and the scheduler cancels it). A chunk finished on a worker that died before its
+#: result was gathered is one of them, so this does not follow ``allowed_failures``; on a cluster that retries
+#: (``allowed_failures > 0``) a chunk that kills every worker it runs on is reported after 1 + 3 deaths.
 _LOST_DATA_RESENDS = 3
+
+#: Dask's work stealing moves a waiting task to an idle worker; with one chunk per worker thread nothing waits,
+#: and a task run elsewhere than the worker its chunk was sent to would leave that worker looking busy and the
+#: one holding the result looking idle. A local cluster runs without it.
+_STEALING_KEY = "distributed.scheduler.work-stealing"
 
 
 def _run_chunk(fn: ChunkFunction, chunk: Sequence[Any], shared: Any) -> Sequence[Any]:
@@ -112,7 +121,8 @@ class DaskExecutor:
         With ``chunk_size=None``, items are split into about ``workers × chunks_per_worker`` chunks.
     allowed_failures
         For a local cluster: how many times a task whose worker died is retried before it is reported failed
-        (Dask's ``distributed.scheduler.allowed-failures``; its default is 3).
+        (Dask's ``distributed.scheduler.allowed-failures``; its default is 3). A chunk whose scattered input
+        died with the worker cannot be retried by Dask; the executor sends it again itself (at most 3 times).
     warm_up
         Load the compiled kernels in every worker when the executor starts (:func:`factorloc.jit.warm_up`,
         about a second each once numba's cache exists), so that no query's time includes it. Every worker,
@@ -163,7 +173,7 @@ class DaskExecutor:
             else:
                 import dask
 
-                overrides: dict[str, Any] = {_TRIM_KEY: None, _AMM_KEY: False}  # see _TRIM_KEY, _AMM_KEY
+                overrides: dict[str, Any] = {_TRIM_KEY: None, _AMM_KEY: False, _STEALING_KEY: False}  # see their notes
                 if self.allowed_failures is not None:
                     overrides["distributed.scheduler.allowed-failures"] = self.allowed_failures
                 with dask.config.set(overrides):
@@ -244,7 +254,7 @@ class DaskExecutor:
         waiting.reverse()
         running: dict[str, tuple[int, Any, str, Any]] = {}  # task key -> (chunk number, data, worker, task)
         resends = [0] * len(chunks)
-        finished = distributed.as_completed()
+        finished = distributed.as_completed(with_results=True, raise_errors=False)  # gathered as each finishes
 
         def send() -> None:
             """Send waiting chunks to the idle worker threads, each chunk's items scattered to its worker."""
@@ -270,11 +280,12 @@ class DaskExecutor:
         done = failed = 0
         try:
             send()
-            for fut in finished:
+            for fut, value in finished:
                 k, data, _, _ = running.pop(fut.key)
                 idx = chunks[k]
-                results = self._results_of(fut, idx, distributed, resend=resends[k] < _LOST_DATA_RESENDS)
+                results = self._results_of(fut, value, idx, distributed, resend=resends[k] < _LOST_DATA_RESENDS)
                 data.release()
+                fut.release()  # its result is here: the scheduler must not recompute it when its worker dies
                 if results is None:  # its data was lost before it ran: send it again
                     resends[k] += 1
                     waiting.append(k)
@@ -295,22 +306,29 @@ class DaskExecutor:
                 f.release()
 
     @staticmethod
-    def _results_of(fut: Any, idx: Sequence[int], distributed: Any, *, resend: bool) -> Sequence[Any] | None:
-        """The chunk's results, a failure per item, or None: its data was lost before it ran (``resend``)."""
-        try:
-            return fut.result()
-        except distributed.KilledWorker as exc:
+    def _results_of(fut: Any, value: Any, idx: Sequence[int], distributed: Any, *, resend: bool) -> Sequence[Any] | None:
+        """The chunk's results, a failure per item, or None: its data died with a worker (``resend``).
+
+        ``value`` is what ``as_completed(with_results=True, raise_errors=False)`` gathered: the result list, the
+        ``(type, exception, traceback)`` of a task that raised, or the ``CancelledError`` of a cancelled one.
+        """
+        if isinstance(value, list):
+            return value
+        exc = value[1] if isinstance(value, tuple) and len(value) == 3 else value
+        if not isinstance(exc, BaseException):  # pragma: no cover - as_completed gives one of the three above
+            exc = RuntimeError(f"unexpected value from Dask for {fut.key}: {type(value).__name__}")
+        if isinstance(exc, distributed.KilledWorker):
             log.warning("the worker running %d items died: %s", len(idx), exc)
             return [failure_of(exc, worker_died=True)] * len(idx)
-        except CancelledError as exc:  # not by this generator: by the scheduler, its input data lost
+        if isinstance(exc, CancelledError):  # not by this generator: by the scheduler, its input died with a worker
             if resend:
-                log.warning("a chunk of %d items lost its data with a dead worker; sending it again", len(idx))
+                log.warning("the worker holding a chunk of %d items died; sending the chunk again", len(idx))
                 return None
-            log.warning("a chunk of %d items lost its data %d times: %s", len(idx), _LOST_DATA_RESENDS + 1, exc)
+            log.warning("a chunk of %d items was lost with a dying worker once more than allowed: %s", len(idx), exc)
             return [failure_of(exc, worker_died=True)] * len(idx)
-        except Exception as exc:  # the chunk's function raised in the worker
-            log.warning("a chunk of %d items failed: %s: %s", len(idx), type(exc).__name__, exc)
-            return [failure_of(exc)] * len(idx)
+        # the chunk's function raised in the worker
+        log.warning("a chunk of %d items failed: %s: %s", len(idx), type(exc).__name__, exc)
+        return [failure_of(exc)] * len(idx)
 
 
 def executor_from_options(workers: int | None = None, scheduler: str | None = None) -> SerialExecutor | DaskExecutor:

@@ -11,6 +11,7 @@ import math
 import os
 import sys
 from collections.abc import Iterator, Sequence
+from concurrent.futures import CancelledError
 from pathlib import Path
 from typing import Any
 
@@ -175,6 +176,8 @@ def test_a_chunk_cancelled_by_the_scheduler_is_sent_again_then_failed(dask2: Das
     # restricted to a worker that does not exist: it never runs before it is cancelled
     fut = dask2.client.submit(_run_chunk, _die_on_three, [1], None, pure=False, workers=["tcp://127.0.0.1:9"])
     dask2.client.cancel([fut])
-    assert DaskExecutor._results_of(fut, [0], distributed, resend=True) is None
-    (failure,) = DaskExecutor._results_of(fut, [0], distributed, resend=False)
+    with pytest.raises(CancelledError) as cancelled:
+        fut.result()
+    assert DaskExecutor._results_of(fut, cancelled.value, [0], distributed, resend=True) is None
+    (failure,) = DaskExecutor._results_of(fut, cancelled.value, [0], distributed, resend=False)
     assert isinstance(failure, TaskFailure) and failure.worker_died and "CancelledError" in failure.error
