@@ -81,8 +81,9 @@ import numpy as np
 from factorloc.errors import ConfigError, InputError
 from factorloc.estimators.base import Hypotheses, heading_not_measured, heading_seed_check, sigma_checks
 from factorloc.geometry import Pose2, wrap_angle
+from factorloc.stats import largest_sigma, mahalanobis_sq_2d, smallest_sigma
 from factorloc.types import Estimate, Query, Reference
-from factorloc.verdicts import Check, Comparison, SeedEvidence, Unit, render_checks
+from factorloc.verdicts import ROUNDING_TOLERANCE, Check, Comparison, SeedEvidence, Unit, render_checks
 from factorloc.vision import keypoints as kp
 from factorloc.vision.depth import (
     DepthMap,
@@ -995,12 +996,11 @@ def _pose_from_bearings(
     if failed:
         diag["pose_rejected"] = render_checks(failed)
         return None
-    pose = final.pose
-    at_ref = _at_reference(pts[inl], az_query_rad[inl], weights[inl], pose, cov_fit, depth.T_world_reference, config, diag)
-    diag["same_spot_d2"] = at_ref[0]
-    diag["at_reference"] = at_ref[1] is not None
-    if at_ref[1] is not None:
-        pose = at_ref[1]
+    d2_ref, sigma_fit, at_ref = _at_reference(
+        pts[inl], az_query_rad[inl], weights[inl], final.pose, cov_fit, depth.T_world_reference, config
+    )
+    diag.update(same_spot_d2=d2_ref, same_spot_sigma_m=sigma_fit, at_reference=at_ref is not None)
+    pose = final.pose if at_ref is None else at_ref
     displacement = float(np.hypot(final.pose.x - depth.T_world_reference.x, final.pose.y - depth.T_world_reference.y))
     diag.update(
         inliers=n_in,
@@ -1015,8 +1015,8 @@ def _pose_from_bearings(
         return Estimate.heading(
             STEP, pose.theta, sigma_theta, reliable=True, reason=reason, diagnostics=diag, checks=tuple(checks)
         )
-    if at_ref[1] is not None:
-        where = f"at the reference: {displacement * 100:.1f} cm away, d² {at_ref[0]:.2f}"
+    if at_ref is not None:
+        where = f"at the reference: {displacement * 100:.1f} cm away, d² {d2_ref:.2f}"
     else:
         where = f"{displacement:.2f} m from the reference"
     reason = f"pose from {n_in} bearings of {len(inl)} matches ({where})"
@@ -1031,8 +1031,7 @@ def _at_reference(
     cov_fit: np.ndarray,
     T_world_reference: Pose2,
     config: CompassConfig,
-    diag: dict[str, Any],
-) -> tuple[float, Pose2 | None]:
+) -> tuple[float, float, Pose2 | None]:
     """Whether the resected bearings say the robot stands at the reference's spot, and the pose if they do.
 
     A nested-model test (Wald): ``d² = Δᵀ Σ⁻¹ Δ`` with ``Δ`` the resected position (world, m) minus the
@@ -1041,30 +1040,29 @@ def _at_reference(
     the reference and the heading re-estimated there: with the position known the bearing residuals are
     linear in θ, so the weighted least-squares heading is the ``weights``-weighted mean of the inliers' votes
     (world azimuth of each point from the reference minus its query bearing), taken about the resected heading.
-    Returns ``(d², Pose2 or None)``; ``d²`` is inf when ``Σ`` is singular. The covariance the compass emits
+    Returns ``(d², Σ's largest σ (m), Pose2 or None)``; ``d²`` is inf when ``Σ`` is singular (its smallest
+    eigenvalue at most ``ROUNDING_TOLERANCE`` of its trace). The covariance the compass emits
     stays the resection's: the restricted heading differs from the resected one by ``K Δ`` (``K = Σ_θp Σ_pp⁻¹``),
     at most ``√d²`` times the part of the heading's σ that the position explains (``√(Σ_θθ − Σ_θθ|p)``), so
     within 2.45 σ at the default. Beyond the patent (its compass gives θ only, with no position to test).
     """
     if config.same_spot_max_d2 is None:
-        return math.nan, None
-    delta = np.array([pose.x - T_world_reference.x, pose.y - T_world_reference.y])
+        return math.nan, math.nan, None
     s_pos = cov_fit[:2, :2]
+    sigma_max = largest_sigma(s_pos)
     # Σ is a covariance: positive definite unless the fit left a direction unobserved (then d² is inf)
     scale = float(np.trace(s_pos))
-    if not (math.isfinite(scale) and scale > 0.0) or np.linalg.eigvalsh(s_pos)[0] <= 1e-12 * scale:
-        return math.inf, None
-    d2 = float(delta @ np.linalg.solve(s_pos, delta))
-    sigma_max = float(math.sqrt(np.linalg.eigvalsh(s_pos)[-1]))
-    diag["same_spot_sigma_m"] = sigma_max
+    if not (math.isfinite(scale) and scale > 0.0) or smallest_sigma(s_pos) ** 2 <= ROUNDING_TOLERANCE * scale:
+        return math.inf, sigma_max, None
+    d2 = mahalanobis_sq_2d(np.array([pose.x - T_world_reference.x, pose.y - T_world_reference.y]), s_pos)
     # only a resection that locates the robot well can say "here": a loose one (σ of decimetres) cannot refuse a
     # spot half a metre away (seed 41's q0063: d² 5.2 at 0.49 m, σ 0.2 m)
     if d2 > config.same_spot_max_d2 or sigma_max > config.same_spot_max_sigma_m:
-        return d2, None
+        return d2, sigma_max, None
     votes = np.arctan2(points_xy_m[:, 1] - T_world_reference.y, points_xy_m[:, 0] - T_world_reference.x) - bearings_rad
     offset = np.asarray(wrap_angle(votes - pose.theta), dtype=np.float64)
     theta = float(wrap_angle(pose.theta + float(np.sum(weights * offset) / np.sum(weights))))
-    return d2, Pose2(T_world_reference.x, T_world_reference.y, theta)
+    return d2, sigma_max, Pose2(T_world_reference.x, T_world_reference.y, theta)
 
 
 def _group_leverage(points_xy_m: np.ndarray, pose: Pose2, weights: np.ndarray, *, cell_m: float) -> tuple[float, np.ndarray]:

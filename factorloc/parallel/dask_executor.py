@@ -286,12 +286,12 @@ class DaskExecutor:
                 results = self._results_of(fut, value, idx, distributed, resend=resends[k] < _LOST_DATA_RESENDS)
                 data.release()
                 fut.release()  # its result is here: the scheduler must not recompute it when its worker dies
-                if results is None:  # its data was lost before it ran: send it again
+                if results is None:  # its data died with a worker: send it again, first
                     resends[k] += 1
                     waiting.append(k)
-                    send()
-                    continue
                 send()  # the next chunk runs while the consumer takes these results
+                if results is None:
+                    continue
                 done += len(idx)
                 failed += sum(isinstance(r, TaskFailure) for r in results)
                 if progress is not None:
